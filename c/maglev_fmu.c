@@ -1,0 +1,573 @@
+/* FMI 2.0 co-simulation entry points for the CE152 plant (maglev_plant.c). */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "fmi2Functions.h"
+#include "maglev_plant.h"
+
+/* Must equal the guid attribute of modelDescription.xml (tests/test_model_description.py). */
+#define MAGLEV_GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
+
+typedef enum {
+    StartAndEnd = 1 << 0,
+    Instantiated = 1 << 1,
+    InitializationMode = 1 << 2,
+    StepComplete = 1 << 3,
+    StepFailed = 1 << 4,
+    Terminated = 1 << 5,
+    Error = 1 << 6,
+} FmuState;
+
+#define ANY_LIVE (Instantiated | InitializationMode | StepComplete | StepFailed | Terminated | Error)
+#define MASK_GET (InitializationMode | StepComplete | StepFailed | Terminated | Error)
+#define MASK_SET (Instantiated | InitializationMode | StepComplete)
+
+typedef struct {
+    char name[128];
+    fmi2CallbackFunctions cb;
+    int logging;
+    FmuState state;
+    double start_time, stop_time;
+    int stop_defined;
+    MaglevAllocator alloc;
+    MaglevPlant plant;
+} Fmu;
+
+static const char *state_name(FmuState s) {
+    switch (s) {
+    case StartAndEnd: return "startAndEnd";
+    case Instantiated: return "instantiated";
+    case InitializationMode: return "initializationMode";
+    case StepComplete: return "stepComplete";
+    case StepFailed: return "stepFailed";
+    case Terminated: return "terminated";
+    case Error: return "error";
+    }
+    return "?";
+}
+
+static void logmsg(const Fmu *f, fmi2Status status, const char *category, const char *fmt, ...) {
+    if (!f->cb.logger) return;
+    if (status == fmi2OK && !f->logging) return;
+    char buf[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    /* '#' starts a value reference in FMI log messages: never pass user text as a format */
+    f->cb.logger(f->cb.componentEnvironment, f->name, status, category, "%s", buf);
+}
+
+static fmi2Status error(Fmu *f, const char *fmt, ...) {
+    char buf[512];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    va_end(ap);
+    logmsg(f, fmi2Error, "logStatusError", "%s", buf);
+    return fmi2Error;
+}
+
+/* The one guard every entry point passes: instance present and call allowed in its state. */
+static int guard(fmi2Component c, const char *fn, int mask) {
+    Fmu *f = (Fmu *)c;
+    if (!f) return 0;
+    if (!(f->state & mask)) {
+        error(f, "%s: not allowed in state %s", fn, state_name(f->state));
+        return 0;
+    }
+    return 1;
+}
+
+#define GUARD(fn, mask) \
+    do { if (!guard(c, fn, mask)) return fmi2Error; } while (0)
+
+static void *fmu_alloc(size_t n, size_t size, void *env) {
+    Fmu *f = env;
+    return f->cb.allocateMemory(n, size);
+}
+
+static void fmu_release(void *p, void *env) {
+    Fmu *f = env;
+    f->cb.freeMemory(p);
+}
+
+const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
+const char *fmi2GetVersion(void) { return fmi2Version; }
+
+fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories,
+                               const fmi2String categories[]) {
+    GUARD("fmi2SetDebugLogging", ANY_LIVE);
+    Fmu *f = c;
+    if (nCategories > 0 && !categories) return error(f, "fmi2SetDebugLogging: categories is NULL");
+    for (size_t k = 0; k < nCategories; k++) {
+        const char *cat = categories[k];
+        if (!cat || (strcmp(cat, "logAll") && strcmp(cat, "logStatusError") && strcmp(cat, "logCalls")))
+            return error(f, "fmi2SetDebugLogging: unknown log category '%s'", cat ? cat : "(null)");
+    }
+    f->logging = loggingOn ? 1 : 0;
+    return fmi2OK;
+}
+
+static void plant_reset(Fmu *f) {
+    maglev_release(&f->plant, &f->alloc);
+    maglev_defaults(&f->plant);
+    f->start_time = 0;
+    f->stop_time = 0;
+    f->stop_defined = 0;
+}
+
+fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
+                              fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
+                              fmi2Boolean visible, fmi2Boolean loggingOn) {
+    (void)fmuResourceLocation;
+    (void)visible;
+    if (!functions || !functions->allocateMemory || !functions->freeMemory) return NULL;
+    fmi2CallbackLogger log = functions->logger;
+    const char *nm = instanceName ? instanceName : "(null)";
+    if (!instanceName || !*instanceName) {
+        if (log) log(functions->componentEnvironment, nm, fmi2Error, "logStatusError",
+                     "fmi2Instantiate: instanceName must be a non-empty string");
+        return NULL;
+    }
+    if (fmuType != fmi2CoSimulation) {
+        if (log) log(functions->componentEnvironment, nm, fmi2Error, "logStatusError",
+                     "fmi2Instantiate: this FMU supports co-simulation only (fmuType = %d)", (int)fmuType);
+        return NULL;
+    }
+    if (!fmuGUID || strcmp(fmuGUID, MAGLEV_GUID) != 0) {
+        if (log) log(functions->componentEnvironment, nm, fmi2Error, "logStatusError",
+                     "fmi2Instantiate: GUID %s does not match %s", fmuGUID ? fmuGUID : "(null)", MAGLEV_GUID);
+        return NULL;
+    }
+    Fmu *f = functions->allocateMemory(1, sizeof *f);
+    if (!f) return NULL;
+    memset(f, 0, sizeof *f);
+    snprintf(f->name, sizeof f->name, "%s", instanceName);
+    f->cb = *functions;
+    f->logging = loggingOn ? 1 : 0;
+    f->alloc.alloc = fmu_alloc;
+    f->alloc.release = fmu_release;
+    f->alloc.env = f;
+    maglev_defaults(&f->plant);
+    f->state = Instantiated;
+    logmsg(f, fmi2OK, "logCalls", "fmi2Instantiate: %s", MAGLEV_GUID);
+    return f;
+}
+
+void fmi2FreeInstance(fmi2Component c) {
+    Fmu *f = c;
+    if (!f) return;
+    maglev_release(&f->plant, &f->alloc);
+    f->state = StartAndEnd;
+    f->cb.freeMemory(f);
+}
+
+fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
+                               fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
+    GUARD("fmi2SetupExperiment", Instantiated);
+    Fmu *f = c;
+    if (toleranceDefined && (!isfinite(tolerance) || tolerance <= 0))
+        return error(f, "fmi2SetupExperiment: tolerance %g must be > 0 and finite", tolerance);
+    if (!isfinite(startTime)) return error(f, "fmi2SetupExperiment: startTime %g is not finite", startTime);
+    if (stopTimeDefined && (!isfinite(stopTime) || stopTime < startTime))
+        return error(f, "fmi2SetupExperiment: stopTime %g must be finite and >= startTime %g", stopTime, startTime);
+    f->start_time = startTime;
+    f->stop_defined = stopTimeDefined ? 1 : 0;
+    f->stop_time = stopTime;
+    f->plant.time = startTime;
+    return fmi2OK;
+}
+
+fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
+    GUARD("fmi2EnterInitializationMode", Instantiated);
+    Fmu *f = c;
+    f->plant.time = f->start_time;
+    f->state = InitializationMode;
+    return fmi2OK;
+}
+
+fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
+    GUARD("fmi2ExitInitializationMode", InitializationMode);
+    Fmu *f = c;
+    char msg[MAGLEV_MSG_LEN];
+    if (maglev_initialize(&f->plant, f->start_time, f->plant.u, &f->alloc, msg, sizeof msg))
+        return error(f, "fmi2ExitInitializationMode: %s", msg);
+    f->state = StepComplete;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Terminate(fmi2Component c) {
+    GUARD("fmi2Terminate", StepComplete | StepFailed);
+    ((Fmu *)c)->state = Terminated;
+    return fmi2OK;
+}
+
+fmi2Status fmi2Reset(fmi2Component c) {
+    GUARD("fmi2Reset", ANY_LIVE);
+    Fmu *f = c;
+    plant_reset(f);
+    f->state = Instantiated;
+    return fmi2OK;
+}
+
+static int check_vrs(Fmu *f, const char *fn, const fmi2ValueReference vr[], size_t nvr, const void *value) {
+    if (nvr == 0) return 1;
+    if (!vr || !value) {
+        error(f, "%s: vr or value array is NULL", fn);
+        return 0;
+    }
+    for (size_t k = 0; k < nvr; k++)
+        if (vr[k] >= MAGLEV_NVARS) {
+            error(f, "%s: unknown value reference %u", fn, (unsigned)vr[k]);
+            return 0;
+        }
+    return 1;
+}
+
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
+    GUARD("fmi2GetReal", MASK_GET);
+    Fmu *f = c;
+    if (!check_vrs(f, "fmi2GetReal", vr, nvr, value)) return fmi2Error;
+    /* Before initialisation ends the state is not set yet: outputs follow the start values. */
+    MaglevPlant view;
+    const MaglevPlant *p = &f->plant;
+    if (f->state == InitializationMode) {
+        view = f->plant;
+        view.hist.len = 0;
+        view.x = maglev_param(&view, VR_x_start);
+        view.v = maglev_param(&view, VR_v_start);
+        view.i = maglev_param(&view, VR_i_start);
+        view.F = 0;
+        maglev_set_param(&view, VR_T_F, 0.0); /* report the static force until the lag state exists */
+        view.time = f->start_time;
+        p = &view;
+    }
+    for (size_t k = 0; k < nvr; k++) value[k] = maglev_get(p, (MaglevVR)vr[k]);
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
+    GUARD("fmi2SetReal", MASK_SET);
+    Fmu *f = c;
+    char msg[MAGLEV_MSG_LEN];
+    if (!check_vrs(f, "fmi2SetReal", vr, nvr, value)) return fmi2Error;
+    /* validate everything first, so a rejected call changes nothing */
+    for (size_t k = 0; k < nvr; k++) {
+        const MaglevVariable *var = &maglev_variables[vr[k]];
+        if (var->causality == MAGLEV_OUTPUT)
+            return error(f, "fmi2SetReal: variable %s is an output and cannot be set", var->name);
+        if (var->causality == MAGLEV_PARAMETER && f->state == StepComplete)
+            return error(f, "fmi2SetReal: variable %s is a fixed parameter, settable only before "
+                         "fmi2ExitInitializationMode", var->name);
+        if (maglev_check_value((MaglevVR)vr[k], value[k], msg, sizeof msg))
+            return error(f, "fmi2SetReal: %s", msg);
+    }
+    for (size_t k = 0; k < nvr; k++) {
+        if (vr[k] == VR_u) {
+            if (f->state == StepComplete) {
+                if (maglev_set_input(&f->plant, value[k], &f->alloc, msg, sizeof msg)) {
+                    f->state = Error;
+                    return error(f, "fmi2SetReal: %s", msg);
+                }
+            } else {
+                f->plant.u = value[k];
+            }
+        } else {
+            maglev_set_param(&f->plant, (MaglevVR)vr[k], value[k]);
+        }
+    }
+    return fmi2OK;
+}
+
+static fmi2Status no_such_type(fmi2Component c, const char *fn, int mask, size_t nvr, const fmi2ValueReference vr[]) {
+    GUARD(fn, mask);
+    if (nvr == 0) return fmi2OK;
+    return error((Fmu *)c, "%s: the FMU has no variable of this type (value reference %u)", fn,
+                 vr ? (unsigned)vr[0] : 0u);
+}
+
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
+    (void)value;
+    return no_such_type(c, "fmi2GetInteger", MASK_GET, nvr, vr);
+}
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
+    (void)value;
+    return no_such_type(c, "fmi2GetBoolean", MASK_GET, nvr, vr);
+}
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
+    (void)value;
+    return no_such_type(c, "fmi2GetString", MASK_GET, nvr, vr);
+}
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
+    (void)value;
+    return no_such_type(c, "fmi2SetInteger", MASK_SET, nvr, vr);
+}
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) {
+    (void)value;
+    return no_such_type(c, "fmi2SetBoolean", MASK_SET, nvr, vr);
+}
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
+    (void)value;
+    return no_such_type(c, "fmi2SetString", MASK_SET, nvr, vr);
+}
+
+/* ---- FMU state ---- */
+
+typedef struct {
+    FmuState state;
+    MaglevPlant plant;
+} Snapshot;
+
+#define MASK_FMUSTATE (Instantiated | InitializationMode | StepComplete | StepFailed | Terminated | Error)
+
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
+    GUARD("fmi2GetFMUstate", MASK_FMUSTATE);
+    Fmu *f = c;
+    if (!FMUstate) return error(f, "fmi2GetFMUstate: FMUstate pointer is NULL");
+    Snapshot *s = *FMUstate;
+    if (!s) {
+        s = f->cb.allocateMemory(1, sizeof *s);
+        if (!s) return error(f, "fmi2GetFMUstate: out of memory");
+        memset(s, 0, sizeof *s);
+    } else {
+        maglev_release(&s->plant, &f->alloc);
+    }
+    if (maglev_copy(&s->plant, &f->plant, &f->alloc)) {
+        f->cb.freeMemory(s);
+        *FMUstate = NULL;
+        return error(f, "fmi2GetFMUstate: out of memory");
+    }
+    s->state = f->state;
+    *FMUstate = s;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
+    GUARD("fmi2SetFMUstate", MASK_FMUSTATE);
+    Fmu *f = c;
+    const Snapshot *s = FMUstate;
+    if (!s) return error(f, "fmi2SetFMUstate: FMUstate is NULL");
+    MaglevPlant copy;
+    if (maglev_copy(&copy, &s->plant, &f->alloc)) return error(f, "fmi2SetFMUstate: out of memory");
+    maglev_release(&f->plant, &f->alloc);
+    f->plant = copy;
+    f->state = s->state;
+    return fmi2OK;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
+    GUARD("fmi2FreeFMUstate", MASK_FMUSTATE);
+    Fmu *f = c;
+    if (!FMUstate) return error(f, "fmi2FreeFMUstate: FMUstate pointer is NULL");
+    Snapshot *s = *FMUstate;
+    if (!s) return fmi2OK;
+    maglev_release(&s->plant, &f->alloc);
+    f->cb.freeMemory(s);
+    *FMUstate = NULL;
+    return fmi2OK;
+}
+
+/* Serialised form: one byte of FMU state, then the plant image (checksummed). */
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
+    GUARD("fmi2SerializedFMUstateSize", MASK_FMUSTATE);
+    Fmu *f = c;
+    const Snapshot *s = FMUstate;
+    if (!s || !size) return error(f, "fmi2SerializedFMUstateSize: FMUstate or size is NULL");
+    *size = 1 + maglev_serialized_size(&s->plant);
+    return fmi2OK;
+}
+
+static int state_code(FmuState s) {
+    for (int k = 0; k < 7; k++)
+        if ((int)s == 1 << k) return k;
+    return -1;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size) {
+    GUARD("fmi2SerializeFMUstate", MASK_FMUSTATE);
+    Fmu *f = c;
+    const Snapshot *s = FMUstate;
+    if (!s || !serializedState) return error(f, "fmi2SerializeFMUstate: FMUstate or buffer is NULL");
+    size_t need = 1 + maglev_serialized_size(&s->plant);
+    if (size < need) return error(f, "fmi2SerializeFMUstate: buffer of %zu bytes, %zu needed", size, need);
+    serializedState[0] = (fmi2Byte)state_code(s->state);
+    maglev_serialize(&s->plant, (unsigned char *)serializedState + 1);
+    return fmi2OK;
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
+                                   fmi2FMUstate *FMUstate) {
+    GUARD("fmi2DeSerializeFMUstate", MASK_FMUSTATE);
+    Fmu *f = c;
+    char msg[MAGLEV_MSG_LEN];
+    if (!serializedState || !FMUstate || size < 1)
+        return error(f, "fmi2DeSerializeFMUstate: empty buffer or NULL FMUstate pointer");
+    int code = (unsigned char)serializedState[0];
+    if (code < 1 || code > 6) return error(f, "fmi2DeSerializeFMUstate: invalid FMU state code %d", code);
+    MaglevPlant p;
+    memset(&p, 0, sizeof p);
+    if (maglev_deserialize(&p, (const unsigned char *)serializedState + 1, size - 1, &f->alloc, msg, sizeof msg))
+        return error(f, "fmi2DeSerializeFMUstate: %s", msg);
+    Snapshot *s = *FMUstate;
+    if (!s) {
+        s = f->cb.allocateMemory(1, sizeof *s);
+        if (!s) {
+            maglev_release(&p, &f->alloc);
+            return error(f, "fmi2DeSerializeFMUstate: out of memory");
+        }
+    } else {
+        maglev_release(&s->plant, &f->alloc);
+    }
+    s->plant = p;
+    s->state = (FmuState)(1 << code);
+    *FMUstate = s;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
+                                        const fmi2ValueReference vKnown_ref[], size_t nKnown,
+                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
+    (void)vUnknown_ref; (void)nUnknown; (void)vKnown_ref; (void)nKnown; (void)dvKnown; (void)dvUnknown;
+    GUARD("fmi2GetDirectionalDerivative", MASK_GET);
+    return error((Fmu *)c, "fmi2GetDirectionalDerivative: not provided (providesDirectionalDerivative=false)");
+}
+
+/* ---- co-simulation ---- */
+
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                       const fmi2Integer order[], const fmi2Real value[]) {
+    (void)vr; (void)order; (void)value;
+    GUARD("fmi2SetRealInputDerivatives", Instantiated | InitializationMode | StepComplete);
+    if (nvr == 0) return fmi2OK;
+    return error((Fmu *)c, "fmi2SetRealInputDerivatives: input derivatives are not supported "
+                 "(canInterpolateInputs=false); the input is held constant over a step");
+}
+
+fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                        const fmi2Integer order[], fmi2Real value[]) {
+    (void)vr; (void)order; (void)value;
+    GUARD("fmi2GetRealOutputDerivatives", StepComplete | StepFailed | Terminated | Error);
+    if (nvr == 0) return fmi2OK;
+    return error((Fmu *)c, "fmi2GetRealOutputDerivatives: not supported (maxOutputDerivativeOrder=0)");
+}
+
+fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
+                      fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
+    (void)noSetFMUStatePriorToCurrentPoint;
+    GUARD("fmi2DoStep", StepComplete);
+    Fmu *f = c;
+    char msg[MAGLEV_MSG_LEN];
+    double t = f->plant.time;
+    if (!isfinite(currentCommunicationPoint))
+        return error(f, "fmi2DoStep: currentCommunicationPoint %g is not finite", currentCommunicationPoint);
+    if (!isfinite(communicationStepSize) || communicationStepSize <= 0)
+        return error(f, "fmi2DoStep: communicationStepSize %g must be > 0 and finite", communicationStepSize);
+    if (fabs(currentCommunicationPoint - t) > 1e-9 * (1.0 + fabs(t)))
+        return error(f, "fmi2DoStep: currentCommunicationPoint %.17g does not match the FMU time %.17g",
+                     currentCommunicationPoint, t);
+    if (f->stop_defined && currentCommunicationPoint + communicationStepSize > f->stop_time * (1 + 1e-12) + 1e-12)
+        return error(f, "fmi2DoStep: step to %.17g goes past stopTime %.17g",
+                     currentCommunicationPoint + communicationStepSize, f->stop_time);
+    /* the importer's time is the reference: absorb rounding between its clock and ours */
+    f->plant.time = currentCommunicationPoint;
+    if (maglev_step(&f->plant, communicationStepSize, &f->alloc, msg, sizeof msg)) {
+        f->state = Error;
+        return error(f, "fmi2DoStep: %s", msg);
+    }
+    return fmi2OK;
+}
+
+fmi2Status fmi2CancelStep(fmi2Component c) {
+    GUARD("fmi2CancelStep", 0);
+    return fmi2Error;
+}
+
+#define MASK_STATUS (StepComplete | StepFailed | Terminated)
+
+fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
+    GUARD("fmi2GetStatus", MASK_STATUS);
+    Fmu *f = c;
+    if (!value) return error(f, "fmi2GetStatus: value is NULL");
+    if (s != fmi2DoStepStatus) return error(f, "fmi2GetStatus: status kind %d not available", (int)s);
+    *value = fmi2OK; /* doStep is synchronous: it never returns fmi2Pending */
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
+    GUARD("fmi2GetRealStatus", MASK_STATUS);
+    Fmu *f = c;
+    if (!value) return error(f, "fmi2GetRealStatus: value is NULL");
+    if (s != fmi2LastSuccessfulTime) return error(f, "fmi2GetRealStatus: status kind %d not available", (int)s);
+    *value = f->plant.time;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
+    (void)s; (void)value;
+    GUARD("fmi2GetIntegerStatus", MASK_STATUS);
+    return error((Fmu *)c, "fmi2GetIntegerStatus: no integer status is available");
+}
+
+fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
+    GUARD("fmi2GetBooleanStatus", MASK_STATUS);
+    Fmu *f = c;
+    if (!value) return error(f, "fmi2GetBooleanStatus: value is NULL");
+    if (s != fmi2Terminated) return error(f, "fmi2GetBooleanStatus: status kind %d not available", (int)s);
+    *value = fmi2False;
+    return fmi2OK;
+}
+
+fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
+    GUARD("fmi2GetStringStatus", MASK_STATUS);
+    Fmu *f = c;
+    if (!value) return error(f, "fmi2GetStringStatus: value is NULL");
+    if (s != fmi2PendingStatus) return error(f, "fmi2GetStringStatus: status kind %d not available", (int)s);
+    *value = "";
+    return fmi2OK;
+}
+
+/* ---- model exchange: not offered; present so every importer finds the symbols ---- */
+
+static fmi2Status me_only(fmi2Component c, const char *fn) {
+    GUARD(fn, ANY_LIVE);
+    return error((Fmu *)c, "%s: this FMU is co-simulation only", fn);
+}
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) { return me_only(c, "fmi2EnterEventMode"); }
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
+    (void)info;
+    return me_only(c, "fmi2NewDiscreteStates");
+}
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return me_only(c, "fmi2EnterContinuousTimeMode"); }
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation) {
+    (void)noSetFMUStatePriorToCurrentPoint; (void)enterEventMode; (void)terminateSimulation;
+    return me_only(c, "fmi2CompletedIntegratorStep");
+}
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
+    (void)time;
+    return me_only(c, "fmi2SetTime");
+}
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
+    (void)x; (void)nx;
+    return me_only(c, "fmi2SetContinuousStates");
+}
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
+    (void)derivatives; (void)nx;
+    return me_only(c, "fmi2GetDerivatives");
+}
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
+    (void)eventIndicators; (void)ni;
+    return me_only(c, "fmi2GetEventIndicators");
+}
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+    (void)x; (void)nx;
+    return me_only(c, "fmi2GetContinuousStates");
+}
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
+    (void)x_nominal; (void)nx;
+    return me_only(c, "fmi2GetNominalsOfContinuousStates");
+}

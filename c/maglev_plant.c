@@ -1,0 +1,544 @@
+/* The CE152 plant equations (paper Eq. 1, 2/5, 8, 12, 13; docs/model.md). */
+#include "maglev_plant.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define PI 3.14159265358979323846
+#define MU_LIMIT 1.0
+#define T_D_MAX 1.0
+#define STEP_MAX 1e-3
+#define TIME_EPS 1e-12
+
+const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
+    [VR_u] = {"u", MAGLEV_INPUT, 0.0, "MU", "D/A converter input (controller output), limited to +-1 MU"},
+    [VR_y] = {"y", MAGLEV_OUTPUT, 0.0, "MU", "A/D converter output (position measurement), Eq. 13, limited to +-1 MU"},
+    [VR_x] = {"x", MAGLEV_OUTPUT, 0.0, "m", "Ball position, growing towards the coil"},
+    [VR_v] = {"v", MAGLEV_OUTPUT, 0.0, "m/s", "Ball velocity"},
+    [VR_i] = {"i", MAGLEV_OUTPUT, 0.0, "A", "Coil current, Eq. 2 (Eq. 5 when T_a = 0)"},
+    [VR_k_DA] = {"k_DA", MAGLEV_PARAMETER, 5.0, "V/MU", "D/A converter gain, Eq. 1 (Sec. 3.1)"},
+    [VR_u_0] = {"u_0", MAGLEV_PARAMETER, 0.0, "V", "D/A converter offset, Eq. 1 (Sec. 3.1)"},
+    [VR_k_i] = {"k_i", MAGLEV_PARAMETER, 0.3, "A/V", "Power amplifier gain, Eq. 2 (Sec. 3.2)"},
+    [VR_T_a] = {"T_a", MAGLEV_PARAMETER, 0.3e-3, "s", "Power amplifier time constant, Eq. 2 (Sec. 3.2); 0 means i = k_i*u, Eq. 5 (effect amplifier_lag)"},
+    [VR_m_k] = {"m_k", MAGLEV_PARAMETER, 8.4e-3, "kg", "Ball mass, Eq. 8 (Sec. 3.4.1)"},
+    [VR_g] = {"g", MAGLEV_PARAMETER, 9.81, "m/s2", "Gravitational acceleration, Eq. 8"},
+    [VR_k_c] = {"k_c", MAGLEV_PARAMETER, 6.9e-6, "N.m2/A2", "Coil constant, Eq. 8 (Sec. 3.4.2, LQ fit)"},
+    [VR_x_0] = {"x_0", MAGLEV_PARAMETER, 8.3e-3, "m", "Coil offset, Eq. 8 (Sec. 3.4.2, LQ fit)"},
+    [VR_k_FV] = {"k_FV", MAGLEV_PARAMETER, 0.03, "N.s/m", "Viscous damping constant, Eq. 8 (Sec. 3.4.3)"},
+    [VR_k_x] = {"k_x", MAGLEV_PARAMETER, 612.3, "V/m", "Position sensor gain, Eq. 12 (Sec. 3.3)"},
+    [VR_y_0] = {"y_0", MAGLEV_PARAMETER, 0.0125, "V", "Position sensor offset, Eq. 12 (Table 3)"},
+    [VR_k_AD] = {"k_AD", MAGLEV_PARAMETER, 0.2, "MU/V", "A/D converter gain, Eq. 13 (Sec. 3.1)"},
+    [VR_y_MU0] = {"y_MU0", MAGLEV_PARAMETER, 0.0, "MU", "A/D converter offset, Eq. 13 (Sec. 3.1)"},
+    [VR_x_min] = {"x_min", MAGLEV_PARAMETER, 0.0, "m", "Lower mechanical stop"},
+    [VR_x_max] = {"x_max", MAGLEV_PARAMETER, 6.3e-3, "m", "Upper mechanical stop, below x_0"},
+    [VR_i_max] = {"i_max", MAGLEV_PARAMETER, 1.5, "A", "Largest current the amplifier delivers (effect current_saturation when lowered)"},
+    [VR_x_start] = {"x_start", MAGLEV_PARAMETER, 0.0, "m", "Initial ball position"},
+    [VR_v_start] = {"v_start", MAGLEV_PARAMETER, 0.0, "m/s", "Initial ball velocity"},
+    [VR_i_start] = {"i_start", MAGLEV_PARAMETER, 0.0, "A", "Initial coil current (used when T_a > 0)"},
+    [VR_T_F] = {"T_F", MAGLEV_PARAMETER, 0.0, "s", "Time constant of the force lag behind the static force law (effect force_lag; 0 = off)"},
+    [VR_T_d] = {"T_d", MAGLEV_PARAMETER, 0.0, "s", "Transport delay of the D/A signal, at most 1 s (effect delay; 0 = off)"},
+    [VR_k_x2] = {"k_x2", MAGLEV_PARAMETER, 0.0, "V/m2", "Sensor deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12 (effect sensor_nonlinearity; 0 = off)"},
+    [VR_x_cal] = {"x_cal", MAGLEV_PARAMETER, 6.3e-3, "m", "Second calibration point of the sensor (Table 3); the first is x = 0"},
+    [VR_A_d] = {"A_d", MAGLEV_PARAMETER, 0.0, "V", "Amplitude of sinusoidal pickup on the sensor voltage (effect periodic_disturbance; 0 = off)"},
+    [VR_f_d] = {"f_d", MAGLEV_PARAMETER, 50.0, "Hz", "Frequency of the sensor pickup"},
+    [VR_phi_d] = {"phi_d", MAGLEV_PARAMETER, 0.0, "rad", "Phase of the sensor pickup at t = 0"},
+    [VR_solver_step] = {"solver_step", MAGLEV_PARAMETER, 1e-4, "s", "Largest internal RK4 step (0 < solver_step <= 1e-3)"},
+    [VR_F] = {"F", MAGLEV_OUTPUT, 0.0, "N", "Magnetic force on the ball, Eq. 8"},
+};
+
+#define P(m, name) ((m)->p[VR_##name - MAGLEV_FIRST_PARAM])
+
+static void *std_alloc(size_t n, size_t size, void *env) { (void)env; return calloc(n, size); }
+static void std_release(void *ptr, void *env) { (void)env; free(ptr); }
+const MaglevAllocator maglev_std_allocator = {std_alloc, std_release, NULL};
+
+static int fail(char *msg, size_t len, const char *fmt, ...) {
+    if (msg && len) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(msg, len, fmt, ap);
+        va_end(ap);
+    }
+    return -1;
+}
+
+static double clip(double v, double lo, double hi) { return v < lo ? lo : (v > hi ? hi : v); }
+
+double maglev_param(const MaglevPlant *m, MaglevVR vr) { return m->p[vr - MAGLEV_FIRST_PARAM]; }
+
+void maglev_set_param(MaglevPlant *m, MaglevVR vr, double value) { m->p[vr - MAGLEV_FIRST_PARAM] = value; }
+
+void maglev_defaults(MaglevPlant *m) {
+    memset(m, 0, sizeof *m);
+    for (int vr = MAGLEV_FIRST_PARAM; vr <= VR_solver_step; vr++)
+        m->p[vr - MAGLEV_FIRST_PARAM] = maglev_variables[vr].start;
+}
+
+int maglev_check_value(MaglevVR vr, double value, char *msg, size_t len) {
+    const char *name = (vr >= 0 && vr < MAGLEV_NVARS) ? maglev_variables[vr].name : "?";
+    if (!isfinite(value)) return fail(msg, len, "variable %s: value %g is not finite", name, value);
+    switch (vr) {
+    case VR_m_k: case VR_k_i: case VR_k_c: case VR_g: case VR_i_max: case VR_x_cal:
+        if (value <= 0) return fail(msg, len, "variable %s: must be > 0, got %g", name, value);
+        break;
+    case VR_k_DA: case VR_k_x: case VR_k_AD:
+        if (value == 0) return fail(msg, len, "variable %s: must not be 0", name);
+        break;
+    case VR_k_FV: case VR_T_a: case VR_T_F: case VR_f_d:
+        if (value < 0) return fail(msg, len, "variable %s: must be >= 0, got %g", name, value);
+        break;
+    case VR_T_d:
+        if (value < 0 || value > T_D_MAX)
+            return fail(msg, len, "variable T_d: must be in [0, %g] s, got %g", T_D_MAX, value);
+        break;
+    case VR_solver_step:
+        if (value <= 0 || value > STEP_MAX)
+            return fail(msg, len, "variable solver_step: must be in (0, %g] s, got %g", STEP_MAX, value);
+        break;
+    default:
+        break;
+    }
+    return 0;
+}
+
+int maglev_check_params(const MaglevPlant *m, char *msg, size_t len) {
+    for (int vr = MAGLEV_FIRST_PARAM; vr <= VR_solver_step; vr++)
+        if (maglev_check_value((MaglevVR)vr, maglev_param(m, (MaglevVR)vr), msg, len)) return -1;
+    if (!(P(m, x_max) < P(m, x_0)))
+        return fail(msg, len, "variable x_max: must be below x_0 = %g m (force law singular at x_0), got %g",
+                    P(m, x_0), P(m, x_max));
+    if (!(P(m, x_min) < P(m, x_max)))
+        return fail(msg, len, "variable x_min: must be below x_max = %g m, got %g", P(m, x_max), P(m, x_min));
+    if (P(m, x_start) < P(m, x_min) || P(m, x_start) > P(m, x_max))
+        return fail(msg, len, "variable x_start: must lie between the stops [%g, %g] m, got %g", P(m, x_min),
+                    P(m, x_max), P(m, x_start));
+    if (P(m, i_start) < 0 || P(m, i_start) > P(m, i_max))
+        return fail(msg, len, "variable i_start: must lie in [0, i_max = %g] A, got %g", P(m, i_max), P(m, i_start));
+    return 0;
+}
+
+/* ---- the equations ---- */
+
+static double current_command(const MaglevPlant *m, double u_mu) {
+    double u_volt = P(m, k_DA) * clip(u_mu, -MU_LIMIT, MU_LIMIT) + P(m, u_0); /* Eq. 1 */
+    return clip(P(m, k_i) * u_volt, 0.0, P(m, i_max));                       /* Eq. 2/5 */
+}
+
+static double static_force(const MaglevPlant *m, double i, double x) {
+    double gap = P(m, x_0) - x;
+    return P(m, k_c) * i * i / (gap * gap); /* Eq. 8 */
+}
+
+/* Current at tau into a piece whose command is ic and whose start current is i0. */
+static double current_at(const MaglevPlant *m, double i0, double ic, double tau) {
+    if (P(m, T_a) <= 0) return ic;
+    return ic + (i0 - ic) * exp(-tau / P(m, T_a));
+}
+
+/* The delayed input in force at time t (history sorted by time, oldest first). */
+static double delayed_input(const MaglevPlant *m, double t) {
+    if (P(m, T_d) <= 0 || m->hist.len == 0) return m->u;
+    double ts = t - P(m, T_d);
+    const MaglevHistory *h = &m->hist;
+    if (ts < h->t[0]) return h->u[0];
+    size_t lo = 0, hi = h->len - 1;
+    while (lo < hi) { /* last breakpoint with t <= ts, to rounding of t + T_d - T_d */
+        size_t mid = (lo + hi + 1) / 2;
+        if (h->t[mid] <= ts + TIME_EPS) lo = mid; else hi = mid - 1;
+    }
+    return h->u[lo];
+}
+
+typedef struct { double x, v, F; } Mech;
+
+typedef struct {
+    const MaglevPlant *m;
+    double i0, ic; /* current at the piece's start and its command */
+} Piece;
+
+static Mech deriv(const Piece *pc, double tau, Mech s, int contact) {
+    const MaglevPlant *m = pc->m;
+    double i = current_at(m, pc->i0, pc->ic, tau);
+    double F = P(m, T_F) > 0 ? s.F : static_force(m, i, s.x);
+    Mech d;
+    d.F = P(m, T_F) > 0 ? (static_force(m, i, s.x) - s.F) / P(m, T_F) : 0.0;
+    if (contact) {
+        d.x = d.v = 0.0;
+    } else {
+        d.x = s.v;
+        d.v = (F - P(m, k_FV) * s.v) / P(m, m_k) - P(m, g); /* Eq. 8 */
+    }
+    return d;
+}
+
+static Mech axpy(Mech s, double a, Mech d) {
+    Mech r = {s.x + a * d.x, s.v + a * d.v, s.F + a * d.F};
+    return r;
+}
+
+static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
+    Mech k1 = deriv(pc, tau, s, contact);
+    Mech k2 = deriv(pc, tau + h / 2, axpy(s, h / 2, k1), contact);
+    Mech k3 = deriv(pc, tau + h / 2, axpy(s, h / 2, k2), contact);
+    Mech k4 = deriv(pc, tau + h, axpy(s, h, k3), contact);
+    Mech r;
+    r.x = s.x + h / 6 * (k1.x + 2 * k2.x + 2 * k3.x + k4.x);
+    r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
+    r.F = s.F + h / 6 * (k1.F + 2 * k2.F + 2 * k3.F + k4.F);
+    return r;
+}
+
+static double force_now(const Piece *pc, double tau, Mech s) {
+    const MaglevPlant *m = pc->m;
+    return P(m, T_F) > 0 ? s.F : static_force(m, current_at(m, pc->i0, pc->ic, tau), s.x);
+}
+
+/* Net force pressing the ball onto the stop it touches (>= 0: stays). */
+static double press(const Piece *pc, double tau, Mech s, int contact) {
+    double net = force_now(pc, tau, s) - P(pc->m, m_k) * P(pc->m, g);
+    return contact == CONTACT_UPPER ? net : -net;
+}
+
+/* Regula falsi (Illinois) for the root of f on [a, b] with f(a), f(b) of opposite sign. */
+typedef double (*RootFn)(const void *ctx, double tau);
+
+static double illinois(RootFn f, const void *ctx, double a, double fa, double b, double fb, double tol) {
+    int side = 0;
+    for (int it = 0; it < 100; it++) {
+        double c = (a * fb - b * fa) / (fb - fa);
+        if (!(c > a && c < b)) c = 0.5 * (a + b);
+        double fc = f(ctx, c);
+        if (fabs(fc) <= tol || b - a < 1e-16) return c;
+        if ((fc > 0) == (fb > 0)) {
+            b = c; fb = fc;
+            if (side == -1) fa /= 2;
+            side = -1;
+        } else {
+            a = c; fa = fc;
+            if (side == 1) fb /= 2;
+            side = 1;
+        }
+    }
+    return 0.5 * (a + b);
+}
+
+typedef struct { const Piece *pc; double tau; Mech s; double stop; int contact; } RootCtx;
+
+static double impact_fn(const void *vctx, double dt) {
+    const RootCtx *c = vctx;
+    return rk4(c->pc, c->tau, c->s, dt, 0).x - c->stop;
+}
+
+static double release_fn(const void *vctx, double dt) {
+    const RootCtx *c = vctx;
+    Mech s = dt > 0 ? rk4(c->pc, c->tau, c->s, dt, c->contact) : c->s;
+    return press(c->pc, c->tau + dt, s, c->contact);
+}
+
+/* Advances the mechanics by one substep h from tau, handling the stops. */
+static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h) {
+    const MaglevPlant *m = pc->m;
+    for (int events = 0; h > 0; events++) {
+        if (events > 16) { /* chattering at a stop: finish the substep where the ball is */
+            *s = rk4(pc, tau, *s, h, *contact);
+            s->x = clip(s->x, P(m, x_min), P(m, x_max));
+            return;
+        }
+        if (*contact) {
+            Mech e = rk4(pc, tau, *s, h, *contact);
+            double p1 = press(pc, tau + h, e, *contact);
+            if (p1 >= 0) { *s = e; return; }
+            RootCtx c = {pc, tau, *s, 0.0, *contact};
+            double dt = illinois(release_fn, &c, 0.0, press(pc, tau, *s, *contact), h, p1, 1e-15);
+            if (dt > 0) *s = rk4(pc, tau, *s, dt, *contact);
+            *contact = CONTACT_NONE;
+            tau += dt;
+            h -= dt;
+            continue;
+        }
+        Mech e = rk4(pc, tau, *s, h, 0);
+        int hit = e.x > P(m, x_max) ? CONTACT_UPPER : (e.x < P(m, x_min) ? CONTACT_LOWER : CONTACT_NONE);
+        if (!hit) { *s = e; return; }
+        double stop = hit == CONTACT_UPPER ? P(m, x_max) : P(m, x_min);
+        RootCtx c = {pc, tau, *s, stop, 0};
+        double dt = illinois(impact_fn, &c, 0.0, s->x - stop, h, e.x - stop, 1e-14);
+        *s = rk4(pc, tau, *s, dt, 0);
+        s->x = stop;
+        s->v = 0.0; /* inelastic impact */
+        tau += dt;
+        h -= dt;
+        *contact = press(pc, tau, *s, hit) >= 0 ? hit : CONTACT_NONE;
+    }
+}
+
+/* Integrates [t0, t0 + len) with a constant delayed input. */
+static void integrate_piece(MaglevPlant *m, double len, double u_eff) {
+    Piece pc = {m, m->i, current_command(m, u_eff)};
+    Mech s = {m->x, m->v, m->F};
+    double hmax = P(m, solver_step);
+    if (P(m, T_F) > 0 && P(m, T_F) / 2 < hmax) hmax = P(m, T_F) / 2;
+    long n = (long)ceil(len / hmax - 1e-9);
+    if (n < 1) n = 1;
+    double h = len / (double)n;
+    for (long k = 0; k < n; k++) substep(&pc, k * h, &s, &m->contact, h);
+    m->x = s.x;
+    m->v = s.v;
+    m->F = P(m, T_F) > 0 ? s.F : 0.0;
+    m->i = current_at(m, pc.i0, pc.ic, len);
+}
+
+/* ---- history of the input, for the delay ---- */
+
+static int hist_push(MaglevPlant *m, double t, double u, const MaglevAllocator *a, char *msg, size_t len) {
+    MaglevHistory *h = &m->hist;
+    if (h->len > 0 && h->u[h->len - 1] == u) return 0;
+    if (h->len > 0 && h->t[h->len - 1] >= t) { /* same instant: the later value wins */
+        h->u[h->len - 1] = u;
+        return 0;
+    }
+    /* drop breakpoints no longer needed: keep the last one at or before now - T_d */
+    size_t keep = 0;
+    while (keep + 1 < h->len && h->t[keep + 1] <= t - P(m, T_d)) keep++;
+    if (keep > 0) {
+        memmove(h->t, h->t + keep, (h->len - keep) * sizeof *h->t);
+        memmove(h->u, h->u + keep, (h->len - keep) * sizeof *h->u);
+        h->len -= keep;
+    }
+    if (h->len == h->cap) {
+        size_t cap = h->cap ? 2 * h->cap : 64;
+        double *nt = a->alloc(cap, sizeof *nt, a->env), *nu = a->alloc(cap, sizeof *nu, a->env);
+        if (!nt || !nu) {
+            if (nt) a->release(nt, a->env);
+            if (nu) a->release(nu, a->env);
+            return fail(msg, len, "out of memory for the input history of the delay T_d");
+        }
+        if (h->len) {
+            memcpy(nt, h->t, h->len * sizeof *nt);
+            memcpy(nu, h->u, h->len * sizeof *nu);
+        }
+        if (h->t) a->release(h->t, a->env);
+        if (h->u) a->release(h->u, a->env);
+        h->t = nt;
+        h->u = nu;
+        h->cap = cap;
+    }
+    h->t[h->len] = t;
+    h->u[h->len] = u;
+    h->len++;
+    return 0;
+}
+
+int maglev_set_input(MaglevPlant *m, double u, const MaglevAllocator *a, char *msg, size_t len) {
+    if (!isfinite(u)) return fail(msg, len, "variable u: value %g is not finite", u);
+    m->u = u;
+    if (P(m, T_d) > 0) return hist_push(m, m->time, u, a, msg, len);
+    return 0;
+}
+
+int maglev_initialize(MaglevPlant *m, double t0, double u0, const MaglevAllocator *a, char *msg, size_t len) {
+    if (maglev_check_params(m, msg, len)) return -1;
+    if (!isfinite(t0)) return fail(msg, len, "start time %g is not finite", t0);
+    m->time = t0;
+    m->x = P(m, x_start);
+    m->v = P(m, v_start);
+    m->hist.len = 0;
+    if (maglev_set_input(m, u0, a, msg, len)) return -1;
+    /* the delay's "before the start" value is the initial input */
+    if (P(m, T_d) > 0 && m->hist.len) m->hist.t[0] = -INFINITY;
+    m->i = P(m, T_a) > 0 ? P(m, i_start) : current_command(m, u0);
+    m->F = P(m, T_F) > 0 ? static_force(m, m->i, m->x) : 0.0;
+    m->contact = CONTACT_NONE;
+    Piece pc = {m, m->i, m->i};
+    Mech s = {m->x, m->v, m->F};
+    if (m->x >= P(m, x_max) && (m->v > 0 || (m->v == 0 && press(&pc, 0, s, CONTACT_UPPER) >= 0))) {
+        m->contact = CONTACT_UPPER;
+        m->v = 0;
+    } else if (m->x <= P(m, x_min) && (m->v < 0 || (m->v == 0 && press(&pc, 0, s, CONTACT_LOWER) >= 0))) {
+        m->contact = CONTACT_LOWER;
+        m->v = 0;
+    }
+    return 0;
+}
+
+int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, size_t len) {
+    (void)a;
+    if (!(h > 0) || !isfinite(h)) return fail(msg, len, "communication step size %g must be > 0 and finite", h);
+    double t_end = m->time + h;
+    if (P(m, T_a) <= 0) m->i = current_command(m, delayed_input(m, m->time));
+    while (m->time < t_end) {
+        double next = t_end;
+        if (P(m, T_d) > 0) { /* the next instant the delayed input changes */
+            const MaglevHistory *hs = &m->hist;
+            for (size_t k = 0; k < hs->len; k++) {
+                double tc = hs->t[k] + P(m, T_d);
+                if (tc > m->time + TIME_EPS) {
+                    if (tc < next - TIME_EPS) next = tc;
+                    break;
+                }
+            }
+        }
+        integrate_piece(m, next - m->time, delayed_input(m, 0.5 * (m->time + next)));
+        m->time = next;
+    }
+    m->time = t_end;
+    if (P(m, T_a) <= 0) m->i = current_command(m, delayed_input(m, m->time));
+    if (!isfinite(m->x) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F))
+        return fail(msg, len, "state became non-finite at t = %g (x = %g, v = %g, i = %g)", m->time, m->x, m->v, m->i);
+    return 0;
+}
+
+double maglev_get(const MaglevPlant *m, MaglevVR vr) {
+    switch (vr) {
+    case VR_u: return m->u;
+    case VR_x: return m->x;
+    case VR_v: return m->v;
+    case VR_i:
+        return P(m, T_a) > 0 ? m->i : current_command(m, delayed_input(m, m->time));
+    case VR_F: {
+        if (P(m, T_F) > 0) return m->F;
+        return static_force(m, maglev_get(m, VR_i), m->x);
+    }
+    case VR_y: {
+        double x = m->x;
+        double yv = P(m, k_x) * x + P(m, y_0) + P(m, k_x2) * x * (x - P(m, x_cal)); /* Eq. 12 */
+        if (P(m, A_d) != 0) yv += P(m, A_d) * sin(2 * PI * P(m, f_d) * m->time + P(m, phi_d));
+        return clip(P(m, k_AD) * yv + P(m, y_MU0), -MU_LIMIT, MU_LIMIT); /* Eq. 13 */
+    }
+    default:
+        if (vr >= MAGLEV_FIRST_PARAM && vr <= VR_solver_step) return maglev_param(m, vr);
+        return NAN;
+    }
+}
+
+/* ---- copy and serialisation ---- */
+
+void maglev_release(MaglevPlant *m, const MaglevAllocator *a) {
+    if (m->hist.t) a->release(m->hist.t, a->env);
+    if (m->hist.u) a->release(m->hist.u, a->env);
+    m->hist.t = m->hist.u = NULL;
+    m->hist.len = m->hist.cap = 0;
+}
+
+int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a) {
+    *dst = *src;
+    dst->hist.t = dst->hist.u = NULL;
+    dst->hist.cap = dst->hist.len = 0;
+    if (src->hist.len) {
+        dst->hist.t = a->alloc(src->hist.len, sizeof(double), a->env);
+        dst->hist.u = a->alloc(src->hist.len, sizeof(double), a->env);
+        if (!dst->hist.t || !dst->hist.u) {
+            maglev_release(dst, a);
+            return -1;
+        }
+        memcpy(dst->hist.t, src->hist.t, src->hist.len * sizeof(double));
+        memcpy(dst->hist.u, src->hist.u, src->hist.len * sizeof(double));
+        dst->hist.len = dst->hist.cap = src->hist.len;
+    }
+    return 0;
+}
+
+/* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, doubles
+ * (params, time, u, x, v, i, F), i32 contact, hist pairs, u64 FNV-1a of all before. */
+#define SER_MAGIC "MGLV"
+#define SER_VERSION 1u
+#define SER_NSTATE 6
+
+static size_t ser_header(void) { return 4 + 4 + 4 + 8; }
+
+size_t maglev_serialized_size(const MaglevPlant *m) {
+    return ser_header() + (MAGLEV_NPARAMS + SER_NSTATE) * 8 + 4 + m->hist.len * 16 + 8;
+}
+
+static unsigned long long fnv1a(const unsigned char *b, size_t n) {
+    unsigned long long h = 1469598103934665603ULL;
+    for (size_t k = 0; k < n; k++) {
+        h ^= b[k];
+        h *= 1099511628211ULL;
+    }
+    return h;
+}
+
+static unsigned char *put(unsigned char *b, const void *v, size_t n) {
+    memcpy(b, v, n);
+    return b + n;
+}
+
+static const unsigned char *get(const unsigned char *b, void *v, size_t n) {
+    memcpy(v, b, n);
+    return b + n;
+}
+
+void maglev_serialize(const MaglevPlant *m, unsigned char *buf) {
+    unsigned char *b = buf;
+    unsigned int version = SER_VERSION, np = MAGLEV_NPARAMS;
+    unsigned long long hl = m->hist.len;
+    int contact = m->contact;
+    double st[SER_NSTATE] = {m->time, m->u, m->x, m->v, m->i, m->F};
+    b = put(b, SER_MAGIC, 4);
+    b = put(b, &version, 4);
+    b = put(b, &np, 4);
+    b = put(b, &hl, 8);
+    b = put(b, m->p, sizeof m->p);
+    b = put(b, st, sizeof st);
+    b = put(b, &contact, 4);
+    for (size_t k = 0; k < m->hist.len; k++) {
+        b = put(b, &m->hist.t[k], 8);
+        b = put(b, &m->hist.u[k], 8);
+    }
+    unsigned long long sum = fnv1a(buf, (size_t)(b - buf));
+    put(b, &sum, 8);
+}
+
+int maglev_deserialize(MaglevPlant *m, const unsigned char *buf, size_t size, const MaglevAllocator *a,
+                       char *msg, size_t len) {
+    if (!buf) return fail(msg, len, "serialized state is NULL");
+    if (size < ser_header() + 8) return fail(msg, len, "serialized state too short (%zu bytes)", size);
+    unsigned int version, np;
+    unsigned long long hl, sum;
+    const unsigned char *b = buf;
+    if (memcmp(b, SER_MAGIC, 4) != 0) return fail(msg, len, "serialized state has a wrong magic number");
+    b = get(b + 4, &version, 4);
+    b = get(b, &np, 4);
+    b = get(b, &hl, 8);
+    if (version != SER_VERSION) return fail(msg, len, "serialized state has version %u, expected %u", version, SER_VERSION);
+    if (np != MAGLEV_NPARAMS) return fail(msg, len, "serialized state has %u parameters, expected %d", np, MAGLEV_NPARAMS);
+    if (hl > (size - ser_header()) / 16) return fail(msg, len, "serialized state truncated (history of %llu entries)", hl);
+    MaglevPlant tmp;
+    memset(&tmp, 0, sizeof tmp);
+    tmp.hist.len = (size_t)hl;
+    size_t need = maglev_serialized_size(&tmp);
+    if (size != need) return fail(msg, len, "serialized state has %zu bytes, expected %zu (truncated or padded)", size, need);
+    get(buf + size - 8, &sum, 8);
+    if (sum != fnv1a(buf, size - 8)) return fail(msg, len, "serialized state is corrupted (checksum mismatch)");
+    double st[SER_NSTATE];
+    int contact;
+    b = get(b, tmp.p, sizeof tmp.p);
+    b = get(b, st, sizeof st);
+    b = get(b, &contact, 4);
+    tmp.time = st[0]; tmp.u = st[1]; tmp.x = st[2]; tmp.v = st[3]; tmp.i = st[4]; tmp.F = st[5];
+    tmp.contact = contact;
+    if (maglev_check_params(&tmp, msg, len)) return -1;
+    for (int k = 0; k < SER_NSTATE; k++)
+        if (!isfinite(st[k])) return fail(msg, len, "serialized state holds a non-finite value");
+    if (contact < -1 || contact > 1) return fail(msg, len, "serialized state holds an invalid contact mode %d", contact);
+    tmp.hist.len = 0;
+    if (hl) {
+        tmp.hist.t = a->alloc((size_t)hl, sizeof(double), a->env);
+        tmp.hist.u = a->alloc((size_t)hl, sizeof(double), a->env);
+        if (!tmp.hist.t || !tmp.hist.u) {
+            maglev_release(&tmp, a);
+            return fail(msg, len, "out of memory while restoring the input history");
+        }
+        for (size_t k = 0; k < hl; k++) {
+            b = get(b, &tmp.hist.t[k], 8);
+            b = get(b, &tmp.hist.u[k], 8);
+        }
+        tmp.hist.len = tmp.hist.cap = (size_t)hl;
+    }
+    maglev_release(m, a);
+    *m = tmp;
+    return 0;
+}

@@ -1,0 +1,132 @@
+/* The CE152 plant (docs/model.md). No FMI types here: the FMU glue
+ * (maglev_fmu.c) and the cffi fast path (maglev_replay.c) both build on this. */
+#ifndef MAGLEV_PLANT_H
+#define MAGLEV_PLANT_H
+
+#include <stddef.h>
+
+/* Value references. The order is the FMU's interface: modelDescription.xml
+ * must list the same names with the same numbers (tests/test_model_description.py). */
+typedef enum {
+    VR_u = 0,
+    VR_y,
+    VR_x,
+    VR_v,
+    VR_i,
+    VR_k_DA,
+    VR_u_0,
+    VR_k_i,
+    VR_T_a,
+    VR_m_k,
+    VR_g,
+    VR_k_c,
+    VR_x_0,
+    VR_k_FV,
+    VR_k_x,
+    VR_y_0,
+    VR_k_AD,
+    VR_y_MU0,
+    VR_x_min,
+    VR_x_max,
+    VR_i_max,
+    VR_x_start,
+    VR_v_start,
+    VR_i_start,
+    VR_T_F,
+    VR_T_d,
+    VR_k_x2,
+    VR_x_cal,
+    VR_A_d,
+    VR_f_d,
+    VR_phi_d,
+    VR_solver_step,
+    VR_F,
+    MAGLEV_NVARS
+} MaglevVR;
+
+#define MAGLEV_FIRST_PARAM VR_k_DA
+#define MAGLEV_NPARAMS (VR_solver_step - VR_k_DA + 1)
+
+typedef enum { MAGLEV_INPUT, MAGLEV_OUTPUT, MAGLEV_PARAMETER } MaglevCausality;
+
+typedef struct {
+    const char *name;
+    MaglevCausality causality;
+    double start;
+    const char *unit;
+    const char *description;
+} MaglevVariable;
+
+/* One row per value reference, indexed by MaglevVR. */
+extern const MaglevVariable maglev_variables[MAGLEV_NVARS];
+
+typedef enum { CONTACT_NONE = 0, CONTACT_LOWER = -1, CONTACT_UPPER = 1 } MaglevContact;
+
+/* Input history for the transport delay: (time, value) breakpoints, oldest first. */
+typedef struct {
+    double *t;
+    double *u;
+    size_t len;
+    size_t cap;
+} MaglevHistory;
+
+typedef struct {
+    double p[MAGLEV_NPARAMS];   /* indexed by VR - MAGLEV_FIRST_PARAM */
+    double time;                /* [s] */
+    double u;                   /* [MU] input held since the last communication point */
+    double x, v, i, F;          /* [m] [m/s] [A] [N] */
+    int contact;                /* MaglevContact */
+    MaglevHistory hist;
+} MaglevPlant;
+
+/* Allocation hooks, so the FMU can use the importer's allocator. */
+typedef struct {
+    void *(*alloc)(size_t n, size_t size, void *env);
+    void (*release)(void *ptr, void *env);
+    void *env;
+} MaglevAllocator;
+
+#define MAGLEV_MSG_LEN 256
+
+/* Parameter access; p is the parameter's value reference. */
+double maglev_param(const MaglevPlant *m, MaglevVR vr);
+void maglev_set_param(MaglevPlant *m, MaglevVR vr, double value);
+
+/* All parameters to their defaults, state cleared, no history. */
+void maglev_defaults(MaglevPlant *m);
+
+/* Checks one value for a variable on its own (finite, sign); 0 if fine,
+ * otherwise writes a message naming the variable into msg. */
+int maglev_check_value(MaglevVR vr, double value, char *msg, size_t msglen);
+
+/* Checks the whole parameter set (the relations between parameters). */
+int maglev_check_params(const MaglevPlant *m, char *msg, size_t msglen);
+
+/* Sets the state from x_start, v_start, i_start at time t0 with input u0.
+ * Returns 0 or -1 with a message. */
+int maglev_initialize(MaglevPlant *m, double t0, double u0, const MaglevAllocator *a,
+                      char *msg, size_t msglen);
+
+/* Sets the input held from now on (records it in the delay history). */
+int maglev_set_input(MaglevPlant *m, double u, const MaglevAllocator *a, char *msg, size_t msglen);
+
+/* Advances by h > 0 seconds. Returns 0 or -1 with a message. */
+int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, size_t msglen);
+
+/* The value of any variable now (outputs are computed from the state). */
+double maglev_get(const MaglevPlant *m, MaglevVR vr);
+
+/* Deep copy (history included); dst must be released or zeroed beforehand. */
+int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a);
+void maglev_release(MaglevPlant *m, const MaglevAllocator *a);
+
+/* Serialisation: a versioned, checksummed byte image of the whole plant. */
+size_t maglev_serialized_size(const MaglevPlant *m);
+void maglev_serialize(const MaglevPlant *m, unsigned char *buf);
+int maglev_deserialize(MaglevPlant *m, const unsigned char *buf, size_t size,
+                       const MaglevAllocator *a, char *msg, size_t msglen);
+
+/* malloc/free allocator for users outside an FMU (tests, the fast path). */
+extern const MaglevAllocator maglev_std_allocator;
+
+#endif
