@@ -48,16 +48,35 @@ static const char *state_name(FmuState s) {
     return "?";
 }
 
-static void logmsg(const Fmu *f, fmi2Status status, const char *category, const char *fmt, ...) {
-    if (!f->cb.logger) return;
-    if (status == fmi2OK && !f->logging) return;
-    char buf[512];
+/* The message goes as the format itself (with '%' doubled), because importers written in
+ * languages without C varargs (fmpy's ctypes logger) never see variadic arguments. */
+static void vemit(const fmi2CallbackFunctions *cb, const char *name, fmi2Status status, const char *category,
+                  const char *fmt, va_list ap) {
+    if (!cb->logger) return;
+    char buf[512], esc[1024];
+    vsnprintf(buf, sizeof buf, fmt, ap);
+    size_t n = 0;
+    for (const char *p = buf; *p && n + 2 < sizeof esc; p++) {
+        if (*p == '%') esc[n++] = '%';
+        esc[n++] = *p;
+    }
+    esc[n] = 0;
+    cb->logger(cb->componentEnvironment, name, status, category, esc);
+}
+
+static void emit(const fmi2CallbackFunctions *cb, const char *name, const char *fmt, ...) {
     va_list ap;
     va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
+    vemit(cb, name, fmi2Error, "logStatusError", fmt, ap);
     va_end(ap);
-    /* '#' starts a value reference in FMI log messages: never pass user text as a format */
-    f->cb.logger(f->cb.componentEnvironment, f->name, status, category, "%s", buf);
+}
+
+static void logmsg(const Fmu *f, fmi2Status status, const char *category, const char *fmt, ...) {
+    if (status == fmi2OK && !f->logging) return;
+    va_list ap;
+    va_start(ap, fmt);
+    vemit(&f->cb, f->name, status, category, fmt, ap);
+    va_end(ap);
 }
 
 static fmi2Status error(Fmu *f, const char *fmt, ...) {
@@ -125,21 +144,17 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     (void)fmuResourceLocation;
     (void)visible;
     if (!functions || !functions->allocateMemory || !functions->freeMemory) return NULL;
-    fmi2CallbackLogger log = functions->logger;
     const char *nm = instanceName ? instanceName : "(null)";
     if (!instanceName || !*instanceName) {
-        if (log) log(functions->componentEnvironment, nm, fmi2Error, "logStatusError",
-                     "fmi2Instantiate: instanceName must be a non-empty string");
+        emit(functions, nm, "fmi2Instantiate: instanceName must be a non-empty string");
         return NULL;
     }
     if (fmuType != fmi2CoSimulation) {
-        if (log) log(functions->componentEnvironment, nm, fmi2Error, "logStatusError",
-                     "fmi2Instantiate: this FMU supports co-simulation only (fmuType = %d)", (int)fmuType);
+        emit(functions, nm, "fmi2Instantiate: this FMU supports co-simulation only (fmuType = %d)", (int)fmuType);
         return NULL;
     }
     if (!fmuGUID || strcmp(fmuGUID, MAGLEV_GUID) != 0) {
-        if (log) log(functions->componentEnvironment, nm, fmi2Error, "logStatusError",
-                     "fmi2Instantiate: GUID %s does not match %s", fmuGUID ? fmuGUID : "(null)", MAGLEV_GUID);
+        emit(functions, nm, "fmi2Instantiate: GUID %s does not match %s", fmuGUID ? fmuGUID : "(null)", MAGLEV_GUID);
         return NULL;
     }
     Fmu *f = functions->allocateMemory(1, sizeof *f);

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Sets up (scripts/setup.sh) and runs every test: the C tests under AddressSanitizer and
+# UndefinedBehaviorSanitizer (ctest), then the Python test suite (pytest).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+echo "[test] C tests under ASan + UBSan (build-asan)"
+cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DMAGLEV_SANITIZE=ON >/dev/null
+cmake --build build-asan --parallel 2 >/dev/null
+(cd build-asan && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  ctest --output-on-failure)
+echo "[test] Python tests"
+.venv/bin/python -m pytest "$@"
