@@ -75,6 +75,14 @@ class Record:
         return {k: getattr(self, k) for k in PID_DEFAULTS}
 
 
+def _value_column(raw: str) -> int:
+    """1-based column where a metadata value starts (after ':' and blanks)."""
+    k = raw.index(":") + 1
+    while k < len(raw) and raw[k] == " ":
+        k += 1
+    return k + 1
+
+
 def _number(path: Path, line: int, col: int, name: str, text: str) -> float:
     try:
         v = float(text)
@@ -125,17 +133,17 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES) -> Record:
         if key in meta:
             line = meta_line[key]
             raw = lines[line - 1]
-            params[key] = _number(path, line, raw.index(":") + 2, key, meta[key])
+            params[key] = _number(path, line, _value_column(raw), key, meta[key])
         else:
             params[key] = default
     if meta.get("controller", "pid").lower() != "pid":
         line = meta_line["controller"]
-        raise RecordError(path, line, lines[line - 1].index(":") + 2,
+        raise RecordError(path, line, _value_column(lines[line - 1]),
                           f"controller '{meta['controller']}' is not supported: only the paper's 'pid'")
     for key in ("ts",):
         if params[key] <= 0:
             line = meta_line[key]
-            raise RecordError(path, line, lines[line - 1].index(":") + 2, f"{key} must be > 0, got {params[key]}")
+            raise RecordError(path, line, _value_column(lines[line - 1]), f"{key} must be > 0, got {params[key]}")
     if params["u_min"] >= params["u_max"]:
         line = meta_line.get("u_max", meta_line.get("u_min", 1))
         raise RecordError(path, line, 1, f"u_min {params['u_min']} must be below u_max {params['u_max']}")
@@ -191,7 +199,7 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES) -> Record:
         tol = max(1e-9, 1e-3 * ts, 0.5 * 10.0 ** -_decimals(lines, line_of, tcol))
         if "ts" in meta and abs(step - ts) > tol:
             ln = meta_line["ts"]
-            raise RecordError(path, ln, lines[ln - 1].index(":") + 2,
+            raise RecordError(path, ln, _value_column(lines[ln - 1]),
                               f"ts {ts} disagrees with the time column, which steps by {step:.6g} s")
         if "ts" not in meta:
             ts = params["ts"] = step
