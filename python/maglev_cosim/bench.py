@@ -1,0 +1,94 @@
+"""``maglev-cosim bench``: tables of measured figures and ratios (the tests time nothing).
+
+1. A closed loop at 1 kHz (10 s by default): per-step cost through fmpy (everything included:
+   getReal, the Python PID, setReal, doStep), through the cffi fast path (whole record in one C
+   call) and through the pure-Python reference plant.
+2. Communication-step independence of the FMU (max |Δy| against the 1 ms run).
+3. The diagnosis of a 12 s synthetic record with the whole catalogue.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _best_of(fn, repeat: int) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, diagnose: bool = True,
+              json_path: Path | None = None) -> dict:
+    from . import fast
+    from .checks import comm_step_study, staircase_input
+    from .cosim import reference_signal, resolve_params, simulate_closed_loop
+    from .linear import operating_point
+    from .pid import PIDConfig
+    from .reference import simulate_closed_loop_reference
+
+    p = resolve_params("section3")
+    pid = PIDConfig()
+    n = int(round(record_seconds / pid.ts))
+    op = operating_point(p, 0.0032)
+    w = reference_signal("square", n, pid.ts, base=op.y_MU, amplitude=0.05)
+    start = p.replace(x_start=0.0032, i_start=op.i).to_start_values()
+    fast.closed_loop(start, w[:100])          # build/load the extension outside the timing
+
+    t_fmpy = _best_of(lambda: simulate_closed_loop(w, params=p, x_op=0.0032, pid=pid, fmu=fmu), 3)
+    t_fast = _best_of(lambda: fast.closed_loop(start, w, u_hold=op.u_MU), 5)
+    n_ref = min(n, 2000)
+    t_ref = _best_of(lambda: simulate_closed_loop_reference(p, w[:n_ref], x_op=0.0032, pid=pid), 1) * n / n_ref
+
+    rows = [("fmpy loop (FMU, Python PID)", t_fmpy), ("cffi fast path (C replay)", t_fast),
+            ("pure-Python reference (solve_ivp)", t_ref)]
+    print(f"\nClosed loop, {record_seconds:g} s at 1 kHz ({n} steps), square reference 3 s period")
+    print(f"{'path':<38}{'total [ms]':>12}{'per step [us]':>15}{'vs fast path':>14}")
+    for name, t in rows:
+        print(f"{name:<38}{t * 1e3:>12.2f}{t / n * 1e6:>15.3f}{t / t_fast:>13.1f}x")
+    note = f" (reference timed on {n_ref} steps, scaled)" if n_ref < n else ""
+    print(f"targets: fmpy <= 10 us/step: {t_fmpy / n * 1e6:.2f}; fast path 10 s <= 20 ms: "
+          f"{t_fast * 10 / record_seconds * 1e3:.2f} ms; fast >= 100x reference: {t_ref / t_fast:.0f}x{note}")
+
+    u = staircase_input()
+    study = {}
+    for label, extra in (("defaults", {}), ("T_a=3ms, T_F=1ms, T_d=2.5ms", {"T_a": 3e-3, "T_F": 1e-3, "T_d": 2.5e-3})):
+        study[label] = comm_step_study(extra, u, fmu=fmu)
+    print("\nCommunication-step independence: max |y - y(1 ms run)| [MU], 3 s open loop with stops")
+    steps = list(next(iter(study.values())).keys())
+    print(f"{'parameters':<30}" + "".join(f"{h:>11.0e}" for h in steps))
+    for label, res in study.items():
+        print(f"{label:<30}" + "".join(f"{res[h]['max_dy']:>11.2e}" for h in steps))
+
+    result = {"closed_loop": {"steps": n, "fmpy_s": t_fmpy, "fast_s": t_fast, "reference_s": t_ref,
+                              "fmpy_us_per_step": t_fmpy / n * 1e6, "fast_us_per_step": t_fast / n * 1e6,
+                              "reference_us_per_step": t_ref / n * 1e6, "fast_vs_reference": t_ref / t_fast,
+                              "fmpy_vs_fast": t_fmpy / t_fast},
+              "comm_step": {k: {f"{h:g}": v for h, v in r.items()} for k, r in study.items()}}
+
+    if diagnose:
+        from .diagnose import diagnose as run_diagnosis
+        from .record import read_record
+        from .synth import synth_record
+
+        with tempfile.TemporaryDirectory() as tmp:
+            path = synth_record(Path(tmp) / "bench.csv", effects={"delay": {"T_d": 0.004}}, reference="steps",
+                                duration=12.0, seed=3)
+            rec = read_record(path)
+            t0 = time.perf_counter()
+            d = run_diagnosis(rec)
+            t_diag = time.perf_counter() - t0
+        print(f"\nDiagnosis of a 12 s record at 1 kHz, whole catalogue ({len(d.candidates)} candidate fits): "
+              f"{t_diag:.1f} s (target <= 60 s); selected {d.selected}")
+        result["diagnosis"] = {"seconds": t_diag, "selected": d.selected, "candidates": len(d.candidates)}
+    if json_path:
+        Path(json_path).write_text(json.dumps(result, indent=2))
+    return result

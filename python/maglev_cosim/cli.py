@@ -1,0 +1,359 @@
+"""``maglev-cosim``: the command line.
+
+Commands: ``step``, ``linearize``, ``bench``, ``diagnose``, ``identify``, ``synth``, ``demo``.
+Every failure ends in one line on stderr (``maglev-cosim: error: ...``) and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+class CliError(Exception):
+    """A failure to report in one line."""
+
+
+def _progress(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def _positive(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not np.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"{text} must be a positive finite number")
+    return v
+
+
+def _finite(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not np.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text} is not finite")
+    return v
+
+
+# ----------------------------------------------------------------------------- step
+
+def cmd_step(a: argparse.Namespace) -> dict:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import control
+    import matplotlib.pyplot as plt
+
+    from .cosim import reference_signal, resolve_params, simulate_closed_loop
+    from .linear import operating_point
+    from .pid import PIDConfig
+    from .reference import simulate_closed_loop_reference
+
+    out = Path(a.out)
+    p = resolve_params(a.params)
+    pid = PIDConfig()
+    n = int(round(a.duration / pid.ts))
+    if n < 10:
+        raise CliError(f"--duration {a.duration} s is shorter than 10 controller samples")
+    op = operating_point(p, a.position)
+    w = reference_signal(a.reference, n, pid.ts, base=op.y_MU, amplitude=a.amplitude)
+    _progress(f"closed loop on the FMU: {a.reference} of {a.amplitude} MU from x = {a.position * 1e3:.2f} mm, "
+              f"{a.duration} s at {1 / pid.ts:.0f} Hz (parameters: {a.params})")
+    t0 = time.perf_counter()
+    res = simulate_closed_loop(w, params=p, x_op=a.position, pid=pid, fmu=a.fmu)
+    t_fmu = time.perf_counter() - t0
+    _progress("same experiment on the independent pure-Python reference plant")
+    ref = simulate_closed_loop_reference(p, w, x_op=a.position, pid=pid)
+    dy = float(np.max(np.abs(res.y - ref["y"])))
+    du = float(np.max(np.abs(res.u - ref["u"])))
+    out.mkdir(parents=True, exist_ok=True)
+    res.to_csv(out / "step.csv")
+    info = {}
+    if a.reference == "step":
+        k0 = int(np.argmax(res.w != res.w[0]))
+        yk = res.y[k0:] - res.y[k0 - 1 if k0 > 0 else 0]
+        si = control.step_info(yk, T=res.t[k0:] - res.t[k0], yfinal=float(res.w[-1] - res.w[0]))
+        info = {k: float(v) for k, v in si.items()}
+    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
+    ax[0].plot(res.t, res.w, color="0.5", lw=1, label="reference w")
+    ax[0].plot(res.t, res.y, color="tab:blue", lw=1, label="y (FMU)")
+    ax[0].plot(res.t, ref["y"], color="tab:orange", lw=1, ls="--", label="y (Python reference)")
+    ax[0].set_ylabel("position y [MU]")
+    ax2 = ax[0].twinx()
+    ax2.plot(res.t, res.x * 1e3, alpha=0)
+    ax2.set_ylabel("x [mm]")
+    lo, hi = ax[0].get_ylim()
+    c = p.k_AD * p.k_x
+    ax2.set_ylim((lo - p.k_AD * p.y_0 - p.y_MU0) / c * 1e3, (hi - p.k_AD * p.y_0 - p.y_MU0) / c * 1e3)
+    ax[0].legend(loc="lower right", fontsize=8)
+    ax[1].plot(res.t, res.u, color="tab:green", lw=1, label="u (controller output)")
+    ax[1].set_ylabel("u [MU]")
+    ax[1].set_xlabel("t [s]")
+    ax[1].legend(loc="upper right", fontsize=8)
+    fig.suptitle(f"CE152 closed loop, paper's discrete PID (Eq. 24/25), parameters '{a.params}'")
+    fig.tight_layout()
+    fig.savefig(out / "step.png", dpi=110)
+    plt.close(fig)
+    report = {"reference": a.reference, "amplitude": a.amplitude, "duration": a.duration, "position": a.position,
+              "params": a.params, "step_info": info, "fmu_vs_reference": {"max_abs_dy": dy, "max_abs_du": du},
+              "fmu_loop_seconds": t_fmu, "samples": n}
+    (out / "step.json").write_text(json.dumps(report, indent=2))
+    print(f"wrote {out / 'step.csv'}, {out / 'step.png'}, {out / 'step.json'}")
+    if info:
+        print("step_info: " + ", ".join(f"{k} {v:.4g}" for k, v in info.items()))
+    print(f"FMU vs pure-Python reference: max |dy| = {dy:.3e} MU, max |du| = {du:.3e} MU")
+    return report
+
+
+# ----------------------------------------------------------------------------- linearize
+
+def cmd_linearize(a: argparse.Namespace) -> dict:
+    from .analysis import closed_loop_report, plot_closed_loop_bode, plot_root_locus
+    from .cosim import resolve_params
+    from .linear import linearize, operating_point, transfer_function
+    from .pid import PIDConfig
+
+    p = resolve_params(a.params)
+    op = operating_point(p, a.position)
+    i = a.current if a.current is not None else op.i
+    sys_ = linearize(p, a.position, i=i)
+    tf = transfer_function(p, a.position, i=i)
+    poles = np.sort_complex(np.asarray(sys_.poles()))
+    zeros = np.asarray(tf.zeros())
+    np.set_printoptions(precision=6, suppress=False, linewidth=120)
+    print(f"operating point: x = {a.position} m, v = 0, i = {i:.6g} A, u = {op.u_MU:.6g} MU, y = {op.y_MU:.6g} MU "
+          f"(parameters: {a.params})")
+    print("A =\n", sys_.A, "\nB =\n", sys_.B, "\nC =\n", sys_.C, "\nD =\n", sys_.D)
+    print("poles:", poles)
+    print("zeros:", zeros)
+    print("H(s) =", tf)
+    cfg = PIDConfig()
+    outdir = Path(a.plots)
+    outdir.mkdir(parents=True, exist_ok=True)
+    plot_root_locus(p, a.position, cfg, outdir / "root_locus.png")
+    plot_closed_loop_bode(p, a.position, cfg, outdir / "closed_loop_bode.png")
+    cl = closed_loop_report(p, a.position, cfg)
+    print(f"wrote {outdir / 'root_locus.png'}, {outdir / 'closed_loop_bode.png'}")
+    print("closed loop with the discrete PID: " + json.dumps(_jsonable(cl))[:600])
+    data = {"operating_point": {"x": a.position, "v": 0.0, "i": i, "u": op.u_MU, "y": op.y_MU},
+            "A": np.asarray(sys_.A).tolist(), "B": np.asarray(sys_.B).tolist(), "C": np.asarray(sys_.C).tolist(),
+            "D": np.asarray(sys_.D).tolist(),
+            "poles": [[float(z.real), float(z.imag)] for z in poles],
+            "zeros": [[float(z.real), float(z.imag)] for z in zeros],
+            "tf": {"num": np.asarray(tf.num[0][0]).tolist(), "den": np.asarray(tf.den[0][0]).tolist()},
+            "closed_loop": _jsonable(cl)}
+    if a.json:
+        Path(a.json).write_text(json.dumps(data, indent=2))
+        print(f"wrote {a.json}")
+    return data
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {str(k): _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
+    if isinstance(o, complex):
+        return [o.real, o.imag]
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.complexfloating):
+        return [float(o.real), float(o.imag)]
+    return o
+
+
+# ----------------------------------------------------------------------------- bench
+
+def cmd_bench(a: argparse.Namespace) -> dict:
+    from .bench import run_bench
+
+    return run_bench(fmu=a.fmu, record_seconds=a.duration, diagnose=not a.no_diagnose)
+
+
+# ----------------------------------------------------------------------------- records
+
+def _load(path: str):
+    from .record import read_record
+
+    return read_record(path)
+
+
+def cmd_diagnose(a: argparse.Namespace) -> dict:
+    from .diagnose import diagnose
+    from .fmu import ensure_fmu
+    from .report import write_report
+
+    rec = _load(a.record)          # fails before anything is written
+    fmu = ensure_fmu(a.fmu)
+    effects = a.effects.split(",") if a.effects else None
+    _progress(f"diagnosing {a.record}: {rec.n} samples, {rec.duration:.2f} s")
+    d = diagnose(rec, effects=effects, progress=_progress, workers=a.workers)
+    written = write_report(rec, d, Path(a.out), fmu=fmu)
+    print(f"selected: {d.selected or 'none'}")
+    print(f"before: rms_y {d.before['rms_y']:.6f} MU, rms_u {d.before['rms_u']:.6f} MU")
+    print(f"after:  rms_y {d.after['rms_y']:.6f} MU, rms_u {d.after['rms_u']:.6f} MU")
+    for e in d.selected:
+        from .diagnose import CATALOGUE
+
+        for p in CATALOGUE[e].params:
+            print(f"  {p} = {d.parameters[p]:.6g} ± {d.uncertainties.get(p, float('nan')):.2g}")
+    print("wrote " + ", ".join(str(p) for p in written.values()))
+    return d.to_json()
+
+
+def cmd_identify(a: argparse.Namespace) -> dict:
+    from .identify import PAPER, identify
+    from .replay import baseline_params
+
+    rec = _load(a.record)
+    res = identify(rec, baseline_params(), with_simplex=not a.no_simplex)
+    print(f"{len(res['points']['x'])} equilibrium points from {a.record}")
+    print(f"{'method':<16}{'quantity':<8}{'this record':>14}{'paper':>14}")
+    for method in ("two_point", "least_squares", "simplex"):
+        if method not in res:
+            continue
+        for q, v in res[method].items():
+            if q in PAPER[method]:
+                print(f"{method:<16}{q:<8}{v:>14.5g}{PAPER[method][q]:>14.5g}")
+    if a.json:
+        Path(a.json).write_text(json.dumps(res, indent=2))
+        print(f"wrote {a.json}")
+    return res
+
+
+def cmd_synth(a: argparse.Namespace) -> dict:
+    from .synth import parse_effect_spec, synth_record
+
+    effects: dict[str, dict[str, float]] = {}
+    for spec in a.effect or []:
+        name, values = parse_effect_spec(spec)
+        effects.setdefault(name, {}).update(values)
+    params = {}
+    for spec in a.param or []:
+        if "=" not in spec:
+            raise CliError(f"--param {spec!r}: expected NAME=VALUE")
+        k, v = spec.split("=", 1)
+        params[k.strip()] = _finite(v)
+    _progress(f"synthesising {a.duration} s ({a.reference}) with effects {effects or 'none'}")
+    path = synth_record(Path(a.out), effects=effects, reference=a.reference, duration=a.duration, seed=a.seed,
+                        noise=not a.no_noise, params=params or None)
+    print(f"wrote {path}")
+    return {"record": str(path)}
+
+
+# ----------------------------------------------------------------------------- demo
+
+def cmd_demo(a: argparse.Namespace) -> dict:
+    from .fmu import build_fmu
+
+    out = Path(a.out)
+    _progress("building the FMU with CMake")
+    fmu = build_fmu()
+    _progress(f"FMU at {fmu}")
+    ns = argparse.Namespace(amplitude=0.05, reference="step", duration=2.0, params="section3", position=0.0032,
+                            out=str(out / "step"), fmu=str(fmu))
+    cmd_step(ns)
+    cmd_linearize(argparse.Namespace(position=0.0032, params="eq18", current=0.5612, json=str(out / "linearize.json"),
+                                     plots=str(out / "linearize")))
+    rec_path = out / "record_undeclared_effect.csv"
+    cmd_synth(argparse.Namespace(out=str(rec_path), effect=["delay:T_d=0.004"], reference="steps", duration=12.0,
+                                 seed=a.seed, no_noise=False, param=None))
+    d = cmd_diagnose(argparse.Namespace(record=str(rec_path), out=str(out / "diagnosis"), fmu=str(fmu),
+                                        effects=None, workers=None))
+    print(f"demo done: see {out}/step, {out}/linearize, {out}/diagnosis/report.md")
+    return d
+
+
+# ----------------------------------------------------------------------------- main
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="maglev-cosim", description="CE152 magnetic levitation FMU toolkit")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("step", help="closed-loop step (or square/sine) on the FMU, checked against the reference")
+    s.add_argument("--amplitude", type=_finite, default=0.05, help="reference change [MU] (default 0.05)")
+    s.add_argument("--reference", choices=["step", "square", "sine"], default="step")
+    s.add_argument("--duration", type=_positive, default=2.0, help="[s] (default 2)")
+    s.add_argument("--params", default="section3", help="parameter set: section3, eq18, baseline")
+    s.add_argument("--position", type=_positive, default=0.0032, help="operating point [m] (default 0.0032)")
+    s.add_argument("--fmu", default=None, help="FMU to use (default: build/maglev.fmu, built if missing)")
+    s.add_argument("--out", required=True, help="output folder")
+    s.set_defaults(func=cmd_step)
+
+    s = sub.add_parser("linearize", help="Jacobian linearisation (Eq. 16-19), root locus and Bode plots")
+    s.add_argument("--position", type=_positive, default=0.0032, help="operating point [m]")
+    s.add_argument("--current", type=_positive, default=None, help="operating current [A] (default: equilibrium)")
+    s.add_argument("--params", default="eq18")
+    s.add_argument("--json", default=None, help="write A, B, C, D, poles ... to this JSON file")
+    s.add_argument("--plots", default="linearize", help="folder for the PNGs (default ./linearize)")
+    s.set_defaults(func=cmd_linearize)
+
+    s = sub.add_parser("bench", help="performance table: fmpy loop, cffi fast path, pure-Python reference")
+    s.add_argument("--fmu", default=None)
+    s.add_argument("--duration", type=_positive, default=10.0, help="closed-loop length [s] (default 10)")
+    s.add_argument("--no-diagnose", action="store_true", help="skip timing a 12 s diagnosis")
+    s.set_defaults(func=cmd_bench)
+
+    s = sub.add_parser("diagnose", help="replay, calibrate, find and add the effect a record shows")
+    s.add_argument("record")
+    s.add_argument("--out", required=True)
+    s.add_argument("--fmu", default=None)
+    s.add_argument("--effects", default=None, help="comma-separated subset of the catalogue")
+    s.add_argument("--workers", type=int, default=None, help="processes for candidate fits (default 2)")
+    s.set_defaults(func=cmd_diagnose)
+
+    s = sub.add_parser("identify", help="the paper's identification methods on a record (Sec. 3.4)")
+    s.add_argument("record")
+    s.add_argument("--json", default=None)
+    s.add_argument("--no-simplex", action="store_true")
+    s.set_defaults(func=cmd_identify)
+
+    s = sub.add_parser("synth", help="write a synthetic record from the rig emulator")
+    s.add_argument("--out", required=True)
+    s.add_argument("--effect", action="append", help="NAME:PARAM=VALUE[,PARAM=VALUE] (repeatable)")
+    s.add_argument("--param", action="append", help="plant parameter override NAME=VALUE (repeatable)")
+    s.add_argument("--reference", choices=["square", "sine", "steps", "chirp"], default="steps")
+    s.add_argument("--duration", type=_positive, default=12.0)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--no-noise", action="store_true")
+    s.set_defaults(func=cmd_synth)
+
+    s = sub.add_parser("demo", help="the main job: build, step, linearise, synthesise and diagnose a record")
+    s.add_argument("--out", default="out")
+    s.add_argument("--seed", type=int, default=7)
+    s.set_defaults(func=cmd_demo)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
+    a = ap.parse_args(argv)
+    try:
+        a.func(a)
+    except KeyboardInterrupt:
+        print("maglev-cosim: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # one line, no traceback
+        from .fmu import FmuError
+        from .record import RecordError
+
+        kind = "" if isinstance(exc, (CliError, FmuError, RecordError, ValueError, FileNotFoundError)) \
+            else f"{type(exc).__name__}: "
+        msg = " ".join(str(exc).split())
+        print(f"maglev-cosim: error: {kind}{msg}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
