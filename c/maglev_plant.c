@@ -180,10 +180,8 @@ static Mech axpy(Mech s, double a, Mech d) {
     return r;
 }
 
-static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
-    double ia = current_at(pc->m, pc->i0, pc->ic, tau);
-    double im = current_at(pc->m, pc->i0, pc->ic, tau + h / 2);
-    double ib = current_at(pc->m, pc->i0, pc->ic, tau + h);
+/* One RK4 step with the currents at its start, middle and end given. */
+static Mech rk4_i(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
     Mech k1 = deriv(pc, ia, s, contact);
     Mech k2 = deriv(pc, im, axpy(s, h / 2, k1), contact);
     Mech k3 = deriv(pc, im, axpy(s, h / 2, k2), contact);
@@ -193,6 +191,11 @@ static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
     r.F = s.F + h / 6 * (k1.F + 2 * k2.F + 2 * k3.F + k4.F);
     return r;
+}
+
+static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
+    return rk4_i(pc, s, h, contact, current_at(pc->m, pc->i0, pc->ic, tau),
+                 current_at(pc->m, pc->i0, pc->ic, tau + h / 2), current_at(pc->m, pc->i0, pc->ic, tau + h));
 }
 
 static double force_now(const Piece *pc, double tau, Mech s) {
@@ -242,17 +245,19 @@ static double release_fn(const void *vctx, double dt) {
     return press(c->pc, c->tau + dt, s, c->contact);
 }
 
-/* Advances the mechanics by one substep h from tau, handling the stops. */
-static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h) {
+/* Advances the mechanics by one substep h from tau, handling the stops. cur holds the currents
+ * at tau, tau + h/2 and tau + h, so that the common case needs no exp(). */
+static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h, const double cur[3]) {
     const MaglevPlant *m = pc->m;
-    for (int events = 0; h > 0; events++) {
+    int full = 1; /* still the whole substep from its start: the given currents apply */
+    for (int events = 0; h > 0; events++, full = 0) {
         if (events > 16) { /* chattering at a stop: finish the substep where the ball is */
             *s = rk4(pc, tau, *s, h, *contact);
             s->x = clip(s->x, P(m, x_min), P(m, x_max));
             return;
         }
         if (*contact) {
-            Mech e = rk4(pc, tau, *s, h, *contact);
+            Mech e = full ? rk4_i(pc, *s, h, *contact, cur[0], cur[1], cur[2]) : rk4(pc, tau, *s, h, *contact);
             double p1 = press(pc, tau + h, e, *contact);
             if (p1 >= 0) { *s = e; return; }
             RootCtx c = {pc, tau, *s, 0.0, *contact};
@@ -263,7 +268,7 @@ static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h
             h -= dt;
             continue;
         }
-        Mech e = rk4(pc, tau, *s, h, 0);
+        Mech e = full ? rk4_i(pc, *s, h, 0, cur[0], cur[1], cur[2]) : rk4(pc, tau, *s, h, 0);
         int hit = e.x > P(m, x_max) ? CONTACT_UPPER : (e.x < P(m, x_min) ? CONTACT_LOWER : CONTACT_NONE);
         if (!hit) { *s = e; return; }
         double stop = hit == CONTACT_UPPER ? P(m, x_max) : P(m, x_min);
@@ -299,7 +304,19 @@ static void integrate_piece(MaglevPlant *m, double len, double u_eff) {
         long n = (long)ceil(span / hs[part] - 1e-9);
         if (n < 1) n = 1;
         double h = span / (double)n;
-        for (long k = 0; k < n; k++) substep(&pc, tau + k * h, &s, &m->contact, h);
+        /* the current's exponential by recurrence: e^(-(k+1)h/T) = e^(-kh/T) * q */
+        double d = pc.i0 - pc.ic, E = 1.0, q = 0.0, qh = 0.0;
+        if (P(m, T_a) > 0) {
+            E = exp(-tau / P(m, T_a));
+            q = exp(-h / P(m, T_a));
+            qh = exp(-h / (2 * P(m, T_a)));
+        }
+        for (long k = 0; k < n; k++) {
+            double cur[3] = {pc.ic + d * E, pc.ic + d * E * qh, pc.ic + d * E * q};
+            if (P(m, T_a) <= 0) cur[0] = cur[1] = cur[2] = pc.ic;
+            substep(&pc, tau + k * h, &s, &m->contact, h, cur);
+            E *= q;
+        }
         tau = bounds[part];
     }
     m->x = s.x;

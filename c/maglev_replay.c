@@ -1,0 +1,116 @@
+/* Closed-loop replay (maglev_replay.h). */
+#include "maglev_replay.h"
+
+#include <math.h>
+#include <stdio.h>
+
+#include "maglev_plant.h"
+
+int maglev_replay_nparams(void) { return MAGLEV_NPARAMS; }
+
+const char *maglev_replay_param_name(int k) {
+    if (k < 0 || k >= MAGLEV_NPARAMS) return NULL;
+    return maglev_variables[MAGLEV_FIRST_PARAM + k].name;
+}
+
+double maglev_replay_param_default(int k) {
+    if (k < 0 || k >= MAGLEV_NPARAMS) return NAN;
+    return maglev_variables[MAGLEV_FIRST_PARAM + k].start;
+}
+
+static int setup(MaglevPlant *m, const double *params, double u0, char *msg, size_t len) {
+    maglev_defaults(m);
+    for (int k = 0; k < MAGLEV_NPARAMS; k++) {
+        if (maglev_check_value((MaglevVR)(MAGLEV_FIRST_PARAM + k), params[k], msg, len)) return -1;
+        maglev_set_param(m, (MaglevVR)(MAGLEV_FIRST_PARAM + k), params[k]);
+    }
+    if (!isfinite(u0)) {
+        snprintf(msg, len, "initial input u_hold %g is not finite", u0);
+        return -1;
+    }
+    return maglev_initialize(m, 0.0, u0, &maglev_std_allocator, msg, len);
+}
+
+static void sample(const MaglevPlant *m, size_t k, double *y, double *x, double *v, double *i, double *yk) {
+    *yk = maglev_get(m, VR_y);
+    if (y) y[k] = *yk;
+    if (x) x[k] = m->x;
+    if (v) v[k] = m->v;
+    if (i) i[k] = maglev_get(m, VR_i);
+}
+
+int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const double *w, size_t n,
+                              double u_hold, double *u, double *y, double *x, double *v, double *i,
+                              char *msg, size_t len) {
+    MaglevPlant m;
+    if (!pid || !(pid->ts > 0) || !isfinite(pid->ts) || !isfinite(pid->kp) || !isfinite(pid->ki) ||
+        !isfinite(pid->kd) || !(pid->u_min < pid->u_max) || !(pid->tf >= 0)) {
+        snprintf(msg, len, "invalid PID settings (ts > 0, finite gains, u_min < u_max, tf >= 0)");
+        return -1;
+    }
+    if (setup(&m, params, u_hold, msg, len)) {
+        maglev_release(&m, &maglev_std_allocator);
+        return -1;
+    }
+    double integral = u_hold, e_prev = 0.0, d_prev = 0.0, t = 0.0;
+    int rc = 0;
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(w[k])) {
+            snprintf(msg, len, "reference w[%zu] = %g is not finite", k, w[k]);
+            rc = -1;
+            break;
+        }
+        double yk;
+        sample(&m, k, y, x, v, i, &yk);
+        double e = w[k] - yk;
+        double integ = integral + pid->ki * pid->ts * e;
+        double d = pid->tf > 0 ? (pid->tf * d_prev + pid->kd * (e - e_prev)) / (pid->tf + pid->ts)
+                               : pid->kd * (e - e_prev) / pid->ts;
+        double raw = pid->kp * e + integ + d;
+        double uk = raw < pid->u_min ? pid->u_min : (raw > pid->u_max ? pid->u_max : raw);
+        if (pid->anti_windup && uk != raw && (raw - uk) * e > 0) integ = integral;
+        integral = integ;
+        e_prev = e;
+        d_prev = d;
+        if (u) u[k] = uk;
+        /* the FMU's clock: the master adds ts to the previous communication point */
+        m.time = t;
+        if (maglev_set_input(&m, uk, &maglev_std_allocator, msg, len) ||
+            maglev_step(&m, pid->ts, &maglev_std_allocator, msg, len)) {
+            rc = -1;
+            break;
+        }
+        t += pid->ts;
+    }
+    maglev_release(&m, &maglev_std_allocator);
+    return rc;
+}
+
+int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, double ts, double *y,
+                            double *x, double *v, double *i, char *msg, size_t len) {
+    MaglevPlant m;
+    if (!(ts > 0) || !isfinite(ts)) {
+        snprintf(msg, len, "sample time ts = %g must be > 0", ts);
+        return -1;
+    }
+    if (n == 0) return 0;
+    if (setup(&m, params, u_in[0], msg, len)) {
+        maglev_release(&m, &maglev_std_allocator);
+        return -1;
+    }
+    int rc = 0;
+    double t = 0.0;
+    for (size_t k = 0; k < n; k++) {
+        double yk;
+        sample(&m, k, y, x, v, i, &yk);
+        m.time = t;
+        if (maglev_set_input(&m, u_in[k], &maglev_std_allocator, msg, len) ||
+            maglev_step(&m, ts, &maglev_std_allocator, msg, len)) {
+            rc = -1;
+            break;
+        }
+        t += ts;
+    }
+    maglev_release(&m, &maglev_std_allocator);
+    return rc;
+}

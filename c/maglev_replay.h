@@ -1,0 +1,32 @@
+/* Closed-loop replay in C: the plant of maglev_plant.c with the paper's discrete PID
+ * (Eq. 24/25), a whole record in one call. The cffi fast path of the Python toolkit. */
+#ifndef MAGLEV_REPLAY_H
+#define MAGLEV_REPLAY_H
+
+#include <stddef.h>
+
+typedef struct {
+    double ts, kp, ki, kd, u_min, u_max;
+    double tf;       /* derivative filter time constant [s], 0 = off */
+    int anti_windup; /* conditional integration */
+} MaglevPid;
+
+/* params: MAGLEV_NPARAMS values in value-reference order from VR_k_DA.
+ * At t_k: y[k] is read, u[k] = PID(w[k], y[k]) is held over [t_k, t_k + ts).
+ * The loop starts settled: e[-1] = 0, integrator = u_hold, plant input u_hold.
+ * Any of u, y, x, v, i may be NULL. Returns 0, or -1 with a message. */
+int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const double *w, size_t n,
+                              double u_hold, double *u, double *y, double *x, double *v, double *i,
+                              char *msg, size_t msglen);
+
+/* The plant driven by a given input sequence; y[k] is read at t_k before u_in[k] is applied;
+ * u_in[0] is also the input before t = 0. */
+int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, double ts, double *y,
+                            double *x, double *v, double *i, char *msg, size_t msglen);
+
+/* Number of parameters and their names, in the order params uses. */
+int maglev_replay_nparams(void);
+const char *maglev_replay_param_name(int k);
+double maglev_replay_param_default(int k);
+
+#endif

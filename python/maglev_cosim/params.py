@@ -1,0 +1,118 @@
+"""The paper's parameter sets, with units and where each value comes from.
+
+Named sets (:data:`PARAMETER_SETS`):
+
+- ``section3``: the identified values of Section 3 (LQ fit of Sec. 3.4.2) — the FMU's defaults;
+- ``eq18``: the reading the linearised matrices of Eq. 18 imply: ``T_a`` = 3 ms
+  (−1/T_a = −333.3 s⁻¹, B = k_i·k_DA/T_a = 500) and ``k_FV`` = 2.4·m_k ≈ 0.0202 N·s/m;
+- ``baseline``: the paper's simulation model, Section 3 with ``T_a`` neglected (Eq. 5).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields, replace
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Plant parameters, named as the FMU's variables (SI units; MU = machine units)."""
+
+    k_DA: float = 5.0          #: D/A gain [V/MU], Eq. 1, Sec. 3.1 (Table 2)
+    u_0: float = 0.0           #: D/A offset [V], Eq. 1, Sec. 3.1
+    k_i: float = 0.3           #: amplifier gain [A/V], Eq. 2, Sec. 3.2
+    T_a: float = 0.3e-3        #: amplifier time constant [s], Eq. 2, Sec. 3.2
+    m_k: float = 8.4e-3        #: ball mass [kg], Eq. 8, Sec. 3.4.1
+    g: float = 9.81            #: gravity [m/s²], Eq. 8
+    k_c: float = 6.9e-6        #: coil constant [N·m²/A²], Eq. 8, Sec. 3.4.2 (LQ)
+    x_0: float = 8.3e-3        #: coil offset [m], Eq. 8, Sec. 3.4.2 (LQ)
+    k_FV: float = 0.03         #: damping [N·s/m], Eq. 8, Sec. 3.4.3
+    k_x: float = 612.3         #: sensor gain [V/m], Eq. 12, Sec. 3.3
+    y_0: float = 0.0125        #: sensor offset [V], Eq. 12, Table 3
+    k_AD: float = 0.2          #: A/D gain [MU/V], Eq. 13, Sec. 3.1 (Table 1)
+    y_MU0: float = 0.0         #: A/D offset [MU], Eq. 13, Sec. 3.1
+    x_min: float = 0.0         #: lower stop [m]
+    x_max: float = 6.3e-3      #: upper stop [m]
+    i_max: float = 1.5         #: amplifier current limit [A] (k_i·k_DA·1 MU)
+    x_start: float = 0.0       #: initial position [m]
+    v_start: float = 0.0       #: initial velocity [m/s]
+    i_start: float = 0.0       #: initial current [A]
+    T_F: float = 0.0           #: force lag [s] (effect force_lag)
+    T_d: float = 0.0           #: transport delay [s] (effect delay)
+    k_x2: float = 0.0          #: sensor nonlinearity [V/m²] (effect sensor_nonlinearity)
+    x_cal: float = 6.3e-3      #: second sensor calibration point [m], Table 3
+    A_d: float = 0.0           #: sensor pickup amplitude [V] (effect periodic_disturbance)
+    f_d: float = 50.0          #: sensor pickup frequency [Hz]
+    phi_d: float = 0.0         #: sensor pickup phase [rad]
+    solver_step: float = 1e-4  #: largest internal RK4 step [s]
+
+    def replace(self, **changes: float) -> PlantParams:
+        """A copy with some values changed; unknown names raise ``ValueError``."""
+        names = {f.name for f in fields(self)}
+        unknown = sorted(set(changes) - names)
+        if unknown:
+            raise ValueError(f"unknown parameter(s): {', '.join(unknown)}")
+        return replace(self, **{k: float(v) for k, v in changes.items()})
+
+    def to_start_values(self) -> dict[str, float]:
+        """FMU start values by variable name (for ``simulate_fmu(start_values=...)`` or ``setReal``)."""
+        return {k: float(v) for k, v in asdict(self).items()}
+
+    def validate(self) -> None:
+        """Raises ``ValueError`` naming the first variable that breaks docs/model.md's rules."""
+        d = asdict(self)
+        for k, v in d.items():
+            if not math.isfinite(v):
+                raise ValueError(f"variable {k}: value {v} is not finite")
+        for k in ("m_k", "k_i", "k_c", "g", "i_max", "x_cal"):
+            if d[k] <= 0:
+                raise ValueError(f"variable {k}: must be > 0, got {d[k]}")
+        for k in ("k_DA", "k_x", "k_AD"):
+            if d[k] == 0:
+                raise ValueError(f"variable {k}: must not be 0")
+        for k in ("k_FV", "T_a", "T_F", "f_d"):
+            if d[k] < 0:
+                raise ValueError(f"variable {k}: must be >= 0, got {d[k]}")
+        if not 0 <= self.T_d <= 1:
+            raise ValueError(f"variable T_d: must be in [0, 1] s, got {self.T_d}")
+        if not 0 < self.solver_step <= 1e-3:
+            raise ValueError(f"variable solver_step: must be in (0, 1e-3] s, got {self.solver_step}")
+        if not self.x_max < self.x_0:
+            raise ValueError(f"variable x_max: must be below x_0 = {self.x_0}, got {self.x_max}")
+        if not self.x_min < self.x_max:
+            raise ValueError(f"variable x_min: must be below x_max = {self.x_max}, got {self.x_min}")
+        if not self.x_min <= self.x_start <= self.x_max:
+            raise ValueError(f"variable x_start: must lie between the stops, got {self.x_start}")
+        if not 0 <= self.i_start <= self.i_max:
+            raise ValueError(f"variable i_start: must lie in [0, i_max], got {self.i_start}")
+
+
+SOURCES: dict[str, str] = {
+    "k_DA": "Sec. 3.1, Table 2 (Eq. 1)", "u_0": "Sec. 3.1 (Eq. 1)", "k_i": "Sec. 3.2 (Eq. 2)",
+    "T_a": "Sec. 3.2 (Eq. 2); Eq. 18 implies 3 ms", "m_k": "Sec. 3.4.1 (Eq. 8)", "g": "standard gravity",
+    "k_c": "Sec. 3.4.2, LQ fit (Eq. 14)", "x_0": "Sec. 3.4.2, LQ fit (Eq. 14)",
+    "k_FV": "Sec. 3.4.3 simplex fit; Eq. 18 implies 0.020", "k_x": "Sec. 3.3, Table 3 (Eq. 12)",
+    "y_0": "Table 3: 0.0125 V at x = 0 (never stated in the text)", "k_AD": "Sec. 3.1, Table 1 (Eq. 13)",
+    "y_MU0": "Sec. 3.1 (Eq. 13)", "x_min": "lower mechanical stop (not in the paper)",
+    "x_max": "upper mechanical stop, end of the sensor's calibrated range (Sec. 3.3)",
+    "i_max": "k_i·k_DA·1 MU (D/A range)", "x_start": "initial state", "v_start": "initial state",
+    "i_start": "initial state", "T_F": "effect force_lag (off)", "T_d": "effect delay (off)",
+    "k_x2": "effect sensor_nonlinearity (off)", "x_cal": "Table 3, second calibration point",
+    "A_d": "effect periodic_disturbance (off)", "f_d": "effect periodic_disturbance",
+    "phi_d": "effect periodic_disturbance", "solver_step": "numerics",
+}
+
+_SECTION3 = PlantParams()
+PARAMETER_SETS: dict[str, PlantParams] = {
+    "section3": _SECTION3,
+    "eq18": _SECTION3.replace(T_a=3e-3, k_FV=2.4 * _SECTION3.m_k),
+    "baseline": _SECTION3.replace(T_a=0.0),
+}
+
+
+def get_params(name: str) -> PlantParams:
+    """A named parameter set (``section3``, ``eq18``, ``baseline``)."""
+    try:
+        return PARAMETER_SETS[name]
+    except KeyError:
+        raise ValueError(f"unknown parameter set {name!r}: choose one of {', '.join(PARAMETER_SETS)}") from None
