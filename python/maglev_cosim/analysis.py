@@ -1,0 +1,142 @@
+"""The paper's controller design checked with python-control (Section 4, Fig. 16–19).
+
+The linear plant of Eq. 19 is discretised with a zero-order hold at ``T_s`` (the D/A holds the
+output), closed with the discrete PID of Eq. 24/25 in a unity feedback loop, and analysed:
+closed-loop poles, ``step_info``, bandwidth, root locus of the continuous design (Fig. 16/17),
+closed-loop Bode magnitude (Fig. 18).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import control
+import numpy as np
+
+from .linear import linearize, operating_point
+from .params import PlantParams
+from .pid import PIDConfig, pid_continuous_tf, pid_tf
+
+
+def discrete_plant(p: PlantParams, x_op: float, ts: float, i: float | None = None) -> control.TransferFunction:
+    """Eq. 19 at ``x_op`` [m], ZOH-discretised at ``ts`` [s]."""
+    return control.ss2tf(control.sample_system(linearize(p, x_op, i), ts, method="zoh"))
+
+
+def discrete_closed_loop(p: PlantParams, x_op: float = 0.0032, cfg: PIDConfig | None = None,
+                         i: float | None = None) -> control.TransferFunction:
+    """Reference-to-position closed loop ``C(z)G(z)/(1 + C(z)G(z))`` [MU/MU]."""
+    cfg = cfg or PIDConfig()
+    return control.feedback(pid_tf(cfg) * discrete_plant(p, x_op, cfg.ts, i), 1)
+
+
+def bandwidth_hz(sys: control.TransferFunction, *, db: float = -3.0) -> float:
+    """First frequency [Hz] above which |T| stays below its DC gain by ``db`` dB (frequency grid up
+    to Nyquist for a discrete system)."""
+    fmax = 0.5 / sys.dt if sys.dt else 1e4
+    f = np.logspace(-2, np.log10(fmax * 0.999), 4000)
+    mag = np.abs(sys(np.exp(2j * np.pi * f * sys.dt)) if sys.dt else sys(2j * np.pi * f)).ravel()
+    dc = abs(complex(sys.dcgain()))
+    below = mag < dc * 10 ** (db / 20)
+    # the last crossing from above to below: the loop is peaky before it rolls off
+    idx = np.nonzero(~below)[0]
+    if len(idx) == 0:
+        return float(f[0])
+    k = idx[-1]
+    return float(f[min(k + 1, len(f) - 1)])
+
+
+def closed_loop_report(p: PlantParams, x_op: float = 0.0032, cfg: PIDConfig | None = None,
+                       i: float | None = None) -> dict:
+    """Closed-loop poles, stability, step_info and bandwidth of the linear discrete loop, with
+    the paper's statements beside them (stable loop, bandwidth about 50 Hz, PID zeros −200, −1.5)."""
+    cfg = cfg or PIDConfig()
+    T = discrete_closed_loop(p, x_op, cfg, i)
+    poles = np.asarray(T.poles())
+    info = control.step_info(T)
+    zeros_c = np.sort(np.real(np.roots([cfg.kd, cfg.kp, cfg.ki])))
+    bw = bandwidth_hz(T)
+    return {
+        "operating_point": x_op,
+        "closed_loop_poles": poles,
+        "max_pole_magnitude": float(np.max(np.abs(poles))),
+        "stable": bool(np.all(np.abs(poles) < 1.0)),
+        "step_info": {k: float(v) for k, v in info.items()},
+        "bandwidth_hz": bw,
+        "pid_zeros": zeros_c.tolist(),
+        "paper": {"stable": True, "bandwidth_hz": 50.0, "pid_zeros": [-200.0, -1.5], "ts": 1e-3},
+    }
+
+
+def root_locus_branches(p: PlantParams, x_op: float, cfg: PIDConfig, gains: np.ndarray) -> np.ndarray:
+    """Closed-loop poles of ``1 + K·C0(s)·H(s)`` for each ``K``, where ``C0 = C/K_p`` is the PID with
+    its gain normalised (zeros fixed at the design's, Eq. 21)."""
+    L0 = pid_continuous_tf(1.0, cfg.ki / cfg.kp, cfg.kd / cfg.kp) * control.ss2tf(linearize(p, x_op))
+    num = np.asarray(L0.num[0][0], float)
+    den = np.asarray(L0.den[0][0], float)
+    n = max(len(num), len(den))
+    num = np.pad(num, (n - len(num), 0))
+    den = np.pad(den, (n - len(den), 0))
+    return np.array([np.sort_complex(np.roots(den + K * num)) for K in gains])
+
+
+def plot_root_locus(p: PlantParams, x_op: float, cfg: PIDConfig, path: str | Path) -> Path:
+    """Root locus of the continuous design (Fig. 16/17) with the chosen gain K = K_p marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    gains = np.logspace(-3, 2, 600)
+    br = root_locus_branches(p, x_op, cfg, gains)
+    chosen = root_locus_branches(p, x_op, cfg, np.array([cfg.kp]))[0]
+    ol = np.append(np.asarray(control.ss2tf(linearize(p, x_op)).poles()), 0.0)   # plant and integrator
+    fig, ax = plt.subplots(figsize=(7, 5.5))
+    for k in range(br.shape[1]):
+        ax.plot(br[:, k].real, br[:, k].imag, ".", ms=1.5, color="tab:blue")
+    ax.plot(ol.real, ol.imag, "x", color="k", ms=9, label="open-loop poles (Eq. 19 and the integrator)")
+    z = np.roots([cfg.kd, cfg.kp, cfg.ki])
+    ax.plot(z.real, z.imag, "o", mfc="none", color="k", ms=8, label="PID zeros (Eq. 21)")
+    ax.plot(chosen.real, chosen.imag, "s", color="tab:red", ms=7, label=f"closed loop, K = {cfg.kp}")
+    ax.axvline(0, color="0.7", lw=0.8)
+    ax.set_xlim(-450, 150)
+    ax.set_ylim(-300, 300)
+    ax.set_xlabel("Re s [1/s]")
+    ax.set_ylabel("Im s [1/s]")
+    ax.set_title(f"Root locus of the PID design at x = {x_op * 1e3:.1f} mm (Fig. 16/17)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PIDConfig, path: str | Path) -> Path:
+    """Closed-loop magnitude of the discrete loop with the −3 dB bandwidth marked (Fig. 18)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    T = discrete_closed_loop(p, x_op, cfg)
+    f = np.logspace(-1, np.log10(0.5 / cfg.ts * 0.999), 2000)
+    mag = np.abs(T(np.exp(2j * np.pi * f * cfg.ts))).ravel()
+    bw = bandwidth_hz(T)
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.semilogx(f, 20 * np.log10(mag), color="tab:blue")
+    ax.axhline(-3, color="0.6", ls="--", lw=0.8)
+    ax.axvline(bw, color="tab:red", ls=":", label=f"bandwidth {bw:.1f} Hz (paper: about 50 Hz)")
+    ax.set_xlabel("frequency [Hz]")
+    ax.set_ylabel("|T| [dB]")
+    ax.set_title("Closed loop, reference to position (Fig. 18)")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def operating_input(p: PlantParams, x_op: float) -> float:
+    """Equilibrium D/A input [MU] at ``x_op`` (convenience for scripts)."""
+    return operating_point(p, x_op).u_MU

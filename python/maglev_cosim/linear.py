@@ -1,0 +1,110 @@
+"""Equilibrium and Jacobian linearisation of the plant (Eq. 15–19) as python-control objects.
+
+States ``[x, v, i]`` (Eq. 15), input ``u`` [MU], output ``y`` [MU]. With ``T_a = 0`` (Eq. 5) the
+current is algebraic and the model has the two states ``[x, v]``; with a force lag ``T_F > 0``
+the force ``F`` is a fourth state.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import control
+import numpy as np
+
+from .params import PlantParams
+
+#: Eq. 18 as printed (states x, v, i; input u_MU; output y_MU).
+EQ18_A = np.array([[0.0, 1.0, 0.0], [3834.4, -2.4, 35.2], [0.0, 0.0, -333.3]])
+EQ18_B = np.array([[0.0], [0.0], [500.0]])
+EQ18_C = np.array([[122.4, 0.0, 0.0]])
+EQ18_POLES = (60.73, -63.12, -333.3)     #: Eq. 19 denominator roots [1/s]
+EQ19_GAIN = 2.154487e6                   #: Eq. 19 numerator
+PAPER_OPERATING_POINT = (0.0032, 0.0, 0.5612)   #: [m, m/s, A], Section 4
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """Equilibrium at rest: position x [m], velocity 0, current i [A], D/A input u_MU [MU],
+    A/D reading y_MU [MU]."""
+
+    x: float
+    v: float
+    i: float
+    u_MU: float
+    y_MU: float
+
+
+def equilibrium_current(p: PlantParams, x: float) -> float:
+    """Current [A] holding the ball at rest at ``x`` (Eq. 8 with ẍ = ẋ = 0)."""
+    return (p.x_0 - x) * math.sqrt(p.m_k * p.g / p.k_c)
+
+
+def sensor_reading(p: PlantParams, x: float) -> float:
+    """Noise-free A/D reading [MU] at position ``x`` [m] (Eq. 12, 13; pickup excluded)."""
+    yv = p.k_x * x + p.y_0 + p.k_x2 * x * (x - p.x_cal)
+    return p.k_AD * yv + p.y_MU0
+
+
+def operating_point(p: PlantParams, x: float) -> OperatingPoint:
+    """The equilibrium at position ``x`` [m]: current, D/A input (Eq. 1, 5) and reading."""
+    i = equilibrium_current(p, x)
+    u = (i / p.k_i - p.u_0) / p.k_DA
+    return OperatingPoint(x, 0.0, i, u, sensor_reading(p, x))
+
+
+def linearize(p: PlantParams, x: float | None = None, i: float | None = None) -> control.StateSpace:
+    """Jacobian linearisation (Eq. 16–17) at position ``x`` [m] (default 3.2 mm) and current ``i``
+    [A] (default: the equilibrium current; the paper's Section 4 uses 0.5612 A)."""
+    x = PAPER_OPERATING_POINT[0] if x is None else x
+    i = equilibrium_current(p, x) if i is None else i
+    gap = p.x_0 - x
+    dfdx = 2 * p.k_c * i**2 / gap**3           # ∂F/∂x [N/m]
+    dfdi = 2 * p.k_c * i / gap**2              # ∂F/∂i [N/A]
+    c_y = p.k_AD * (p.k_x + p.k_x2 * (2 * x - p.x_cal))
+    kin = p.k_i * p.k_DA                        # [A/MU]
+    lag_f = p.T_F > 0
+    if p.T_a > 0:
+        n = 4 if lag_f else 3
+        A = np.zeros((n, n))
+        B = np.zeros((n, 1))
+        A[0, 1] = 1.0
+        A[1, 1] = -p.k_FV / p.m_k
+        A[2, 2] = -1.0 / p.T_a
+        B[2, 0] = kin / p.T_a
+        if lag_f:
+            A[1, 3] = 1.0 / p.m_k
+            A[3, 0] = dfdx / p.T_F
+            A[3, 2] = dfdi / p.T_F
+            A[3, 3] = -1.0 / p.T_F
+        else:
+            A[1, 0] = dfdx / p.m_k
+            A[1, 2] = dfdi / p.m_k
+    else:
+        n = 3 if lag_f else 2
+        A = np.zeros((n, n))
+        B = np.zeros((n, 1))
+        A[0, 1] = 1.0
+        A[1, 1] = -p.k_FV / p.m_k
+        if lag_f:
+            A[1, 2] = 1.0 / p.m_k
+            A[2, 0] = dfdx / p.T_F
+            A[2, 2] = -1.0 / p.T_F
+            B[2, 0] = dfdi * kin / p.T_F
+        else:
+            A[1, 0] = dfdx / p.m_k
+            B[1, 0] = dfdi * kin / p.m_k
+    C = np.zeros((1, n))
+    C[0, 0] = c_y
+    return control.ss(A, B, C, np.zeros((1, 1)))
+
+
+def transfer_function(p: PlantParams, x: float | None = None, i: float | None = None) -> control.TransferFunction:
+    """H(s) = Y(s)/U(s) in MU/MU (Eq. 19); rounding residue of the conversion (coefficients below
+    1e-12 of the largest) is removed, so the numerator is the constant of Eq. 19."""
+    tf = control.ss2tf(linearize(p, x, i))
+    num = np.asarray(tf.num[0][0], float)
+    num = np.where(np.abs(num) < 1e-12 * np.max(np.abs(num)), 0.0, num)
+    num = np.trim_zeros(num, "f")
+    return control.tf(num, np.asarray(tf.den[0][0], float))

@@ -1,0 +1,180 @@
+"""An independent pure-Python reference of the plant, to cross-check the C code.
+
+Same equations and limits as docs/model.md, written apart from the C plant and integrated by a
+different kind of method: scipy's ``solve_ivp`` (DOP853, tight tolerances) on the full state
+``[x, v, i, F]`` between input breakpoints, with stop impacts and releases as terminal events.
+Nothing here calls C.
+"""
+
+from __future__ import annotations
+
+import math
+from bisect import bisect_right
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from .linear import operating_point
+from .params import PlantParams
+from .pid import DiscretePID, PIDConfig
+
+RTOL = 1e-12
+ATOL = np.array([1e-16, 1e-14, 1e-14, 1e-14])
+
+
+class ReferencePlant:
+    """The plant advanced by ``step(h)``; input held between calls (``set_input``)."""
+
+    def __init__(self, params: PlantParams) -> None:
+        params.validate()
+        self.p = params
+        self.reset(0.0)
+
+    def reset(self, u0: float = 0.0) -> None:
+        """Initial state from x_start, v_start, i_start; ``u0`` [MU] is also the input before t = 0."""
+        p = self.p
+        self.time = 0.0
+        self.u = float(u0)
+        self.hist_t: list[float] = [-math.inf]
+        self.hist_u: list[float] = [self.u]
+        i = p.i_start if p.T_a > 0 else self._command(self.u)
+        F = self._force(i, p.x_start)
+        self.z = np.array([p.x_start, p.v_start, i, F])
+        self.mode = 0
+        net = F - p.m_k * p.g
+        if p.x_start >= p.x_max and (p.v_start > 0 or (p.v_start == 0 and net >= 0)):
+            self.mode, self.z[1] = 1, 0.0
+        elif p.x_start <= p.x_min and (p.v_start < 0 or (p.v_start == 0 and net <= 0)):
+            self.mode, self.z[1] = -1, 0.0
+
+    # --- the equations (Eq. 1, 2/5, 8, 12, 13)
+    def _command(self, u_mu: float) -> float:
+        p = self.p
+        volts = p.k_DA * min(max(u_mu, -1.0), 1.0) + p.u_0
+        return min(max(p.k_i * volts, 0.0), p.i_max)
+
+    def _force(self, i: float, x: float) -> float:
+        return self.p.k_c * i * i / (self.p.x_0 - x) ** 2
+
+    def _rhs(self, ic: float):
+        p = self.p
+
+        def f(t: float, z: np.ndarray) -> np.ndarray:
+            x, v, i, F = z
+            di = (ic - i) / p.T_a if p.T_a > 0 else 0.0
+            fs = self._force(i if p.T_a > 0 else ic, x)
+            dF = (fs - F) / p.T_F if p.T_F > 0 else 0.0
+            force = F if p.T_F > 0 else fs
+            if self.mode:
+                return np.array([0.0, 0.0, di, dF])
+            return np.array([v, (force - p.k_FV * v) / p.m_k - p.g, di, dF])
+
+        return f
+
+    def _net(self, z: np.ndarray, ic: float) -> float:
+        p = self.p
+        force = z[3] if p.T_F > 0 else self._force(z[2] if p.T_a > 0 else ic, z[0])
+        return force - p.m_k * p.g
+
+    def set_input(self, u: float) -> None:
+        """The D/A input [MU] from now on."""
+        if not math.isfinite(u):
+            raise ValueError(f"variable u: value {u} is not finite")
+        self.u = float(u)
+        if self.hist_t[-1] >= self.time:
+            self.hist_u[-1] = self.u
+        elif self.hist_u[-1] != self.u:
+            self.hist_t.append(self.time)
+            self.hist_u.append(self.u)
+
+    def _delayed(self, t: float) -> float:
+        k = bisect_right(self.hist_t, t - self.p.T_d + 1e-12) - 1
+        return self.hist_u[max(k, 0)]
+
+    def step(self, h: float) -> None:
+        """Advances ``h`` seconds."""
+        if not h > 0:
+            raise ValueError(f"step size {h} must be > 0")
+        p = self.p
+        t_end = self.time + h
+        cuts = sorted({tc + p.T_d for tc in self.hist_t if self.time + 1e-12 < tc + p.T_d < t_end - 1e-12})
+        for a, b in zip([self.time, *cuts], [*cuts, t_end]):
+            self._piece(a, b, self._command(self._delayed(0.5 * (a + b))))
+        self.time = t_end
+
+    def _piece(self, t0: float, t1: float, ic: float) -> None:
+        p = self.p
+        if p.T_a <= 0:
+            self.z[2] = ic
+            if p.T_F <= 0:
+                self.z[3] = self._force(ic, self.z[0])
+        t = t0
+        while t1 - t > 1e-15:
+            if self.mode == 0:
+                hit_top = lambda _t, z: z[0] - p.x_max  # noqa: E731
+                hit_bottom = lambda _t, z: z[0] - p.x_min  # noqa: E731
+                hit_top.terminal, hit_top.direction = True, 1
+                hit_bottom.terminal, hit_bottom.direction = True, -1
+                events = [hit_top, hit_bottom]
+            else:
+                sign = self.mode
+                release = lambda _t, z: sign * self._net(z, ic)  # noqa: E731
+                release.terminal, release.direction = True, -1
+                events = [release]
+            sol = solve_ivp(self._rhs(ic), (t, t1), self.z, method="DOP853", rtol=RTOL, atol=ATOL,
+                            events=events)
+            self.z = sol.y[:, -1].copy()
+            if sol.status == 1:
+                t = float(sol.t[-1])
+                if self.mode == 0:
+                    top = len(sol.t_events[0]) > 0
+                    self.z[0] = p.x_max if top else p.x_min
+                    self.z[1] = 0.0
+                    stop = 1 if top else -1
+                    self.mode = stop if stop * self._net(self.z, ic) >= 0 else 0
+                else:
+                    self.mode = 0
+            else:
+                t = t1
+        if p.T_a <= 0:
+            self.z[2] = ic
+
+    def outputs(self) -> dict[str, float]:
+        """y [MU] (Eq. 12, 13), x [m], v [m/s], i [A], F [N] now."""
+        p = self.p
+        x, v, i, F = self.z
+        if p.T_a <= 0:
+            i = self._command(self._delayed(self.time))
+        force = F if p.T_F > 0 else self._force(i, x)
+        yv = p.k_x * x + p.y_0 + p.k_x2 * x * (x - p.x_cal) + p.A_d * math.sin(2 * math.pi * p.f_d * self.time + p.phi_d)
+        y = min(max(p.k_AD * yv + p.y_MU0, -1.0), 1.0)
+        return {"y": y, "x": float(x), "v": float(v), "i": float(i), "F": float(force)}
+
+
+def equilibrium(p: PlantParams, x: float) -> tuple[float, float]:
+    """Equilibrium current [A] and D/A input [MU] at ``x`` [m]."""
+    op = operating_point(p, x)
+    return op.i, op.u_MU
+
+
+def simulate_closed_loop_reference(p: PlantParams, w: np.ndarray, *, x_op: float = 0.0032,
+                                   pid: PIDConfig | None = None) -> dict[str, np.ndarray]:
+    """The closed loop of :func:`maglev_cosim.cosim.simulate_closed_loop` on the reference plant:
+    settled at rest at ``x_op`` [m], PID (Eq. 24/25) at ``ts``. Returns t, w, u, y, x, v, i."""
+    pid = pid or PIDConfig()
+    op = operating_point(p, x_op)
+    plant = ReferencePlant(p.replace(x_start=x_op, v_start=0.0, i_start=op.i))
+    plant.reset(op.u_MU)
+    ctl = DiscretePID(pid)
+    ctl.reset(op.u_MU)
+    n = len(w)
+    out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
+    for k in range(n):
+        o = plant.outputs()
+        for key in ("y", "x", "v", "i"):
+            out[key][k] = o[key]
+        u = ctl.step(float(w[k]), o["y"])
+        out["u"][k] = u
+        plant.set_input(u)
+        plant.step(pid.ts)
+    return {"t": np.arange(n) * pid.ts, "w": np.asarray(w, float), **out}
