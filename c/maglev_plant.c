@@ -12,6 +12,7 @@
 #define T_D_MAX 1.0
 #define STEP_MAX 1e-3
 #define TIME_EPS 1e-12
+#define T_F_MIN 1e-6 /* [s] shorter force lags would need ever smaller RK4 substeps */
 #define TRANSIENT_EPS 1e-9 /* [A] current transient below which RK4 may take full steps */
 
 const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
@@ -88,8 +89,12 @@ int maglev_check_value(MaglevVR vr, double value, char *msg, size_t len) {
     case VR_k_DA: case VR_k_x: case VR_k_AD:
         if (value == 0) return fail(msg, len, "variable %s: must not be 0", name);
         break;
-    case VR_k_FV: case VR_T_a: case VR_T_F: case VR_f_d:
+    case VR_k_FV: case VR_T_a: case VR_f_d:
         if (value < 0) return fail(msg, len, "variable %s: must be >= 0, got %g", name, value);
+        break;
+    case VR_T_F:
+        if (value < 0 || (value > 0 && value < T_F_MIN))
+            return fail(msg, len, "variable T_F: must be 0 (off) or >= %g s, got %g", T_F_MIN, value);
         break;
     case VR_T_d:
         if (value < 0 || value > T_D_MAX)

@@ -63,7 +63,7 @@ class Effect:
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     Effect("amplifier_lag", ("T_a",), (1e-3,), ((0.0, 0.05),),
            "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5"),
-    Effect("force_lag", ("T_F",), (1e-3,), ((0.0, 0.05),),
+    Effect("force_lag", ("T_F",), (1e-3,), ((5e-5, 0.05),),   # below 50 us the lag is invisible at 1 kHz
            "the magnetic force following the static law through a lag T_F (eddy currents)"),
     Effect("delay", ("T_d",), (1e-3,), ((0.0, 0.05),),
            "a transport delay T_d of the D/A signal (computation and I/O)"),
@@ -314,6 +314,8 @@ def starts_for(effect: Effect, prob: Problem, current: Mapping[str, float]) -> l
 def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) -> dict:
     """Fits one effect together with the baseline's calibrated parameters on the fit blocks."""
     eff = CATALOGUE[effect_name]
+    # effects selected in earlier rounds stay in the model while this one is fitted
+    prob = Problem(prob.rec, {**prob.base, **current}, prob.sigma_y, prob.sigma_u, prob.mask)
     cal_names = [n for n, *_ in CALIBRATED]
     cal_scales = [s for _, s, _, _ in CALIBRATED]
     cal_bounds = [(lo, hi) for _, _, lo, hi in CALIBRATED]
@@ -338,7 +340,7 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) ->
         best = [a, b, best[2]]
     f = fit(prob, cal_names + e_names, _calibrated_x0(current) + list(best), cal_scales + e_scales,
             cal_bounds + e_bounds)
-    return {"effect": effect_name, "values": f.values, "fit_cost": f.cost, "nfev": f.nfev}
+    return {"effect": effect_name, "values": {**current, **f.values}, "fit_cost": f.cost, "nfev": f.nfev}
 
 
 def _worker(args: tuple[Problem, dict[str, float], str]) -> dict:

@@ -1,0 +1,236 @@
+"""An emulator of the real rig in closed loop, for synthetic records.
+
+Written apart from the C plant the diagnosis fits (no C, no shared code beyond parameter
+defaults), with its own way of adding each effect, its own integrator (RK4 on ``[x, v, i, F]``
+with the current as an ODE state and stops clamped at substep ends), and the measurement chain
+a real rig has:
+
+- sensor noise: white Gaussian on the A/D reading, σ = 2e-4 MU (1 mV on the sensor's 0–5 V,
+  about 0.4 LSB of the 12-bit card);
+- 12-bit converters: A/D reading and D/A value quantised to 1/2048 MU (the MF614 at ±5 V; the
+  example record's 0.969727 and 0.389160 are multiples of 1/2048);
+- a small random force on the ball: Gaussian, low-passed with a 20 ms time constant, RMS 0.3 %
+  of the weight (air draught, vibration);
+- the paper's PID with its output limits.
+
+Effects outside the diagnosis catalogue, for honesty tests: ``force_exponent`` (force law
+``k_c'·i²/(x_0 − x)^n`` with ``k_c'`` keeping the 3.2 mm equilibrium) and ``coulomb_friction``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+
+import numpy as np
+
+LSB = 1.0 / 2048.0       # [MU] 12-bit converter over ±1 MU
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    """The emulated rig: plant parameters (SI units), effects, measurement chain and seed."""
+
+    k_DA: float = 5.0
+    u_0: float = 0.0
+    k_i: float = 0.3
+    m_k: float = 8.4e-3
+    g: float = 9.81
+    k_c: float = 6.9e-6
+    x_0: float = 8.3e-3
+    k_FV: float = 0.03
+    k_x: float = 612.3
+    y_0: float = 0.0125
+    k_AD: float = 0.2
+    y_MU0: float = 0.0
+    x_min: float = 0.0
+    x_max: float = 6.3e-3
+    i_max: float = 1.5          # current_saturation when lowered
+    T_a: float = 0.0            # amplifier_lag (the baseline neglects it, Eq. 5)
+    T_F: float = 0.0            # force_lag
+    T_d: float = 0.0            # delay
+    k_x2: float = 0.0           # sensor_nonlinearity
+    x_cal: float = 6.3e-3
+    A_d: float = 0.0            # periodic_disturbance
+    f_d: float = 50.0
+    phi_d: float = 0.0
+    n: float = 2.0              # force_exponent (outside the catalogue)
+    F_c: float = 0.0            # coulomb_friction [N] (outside the catalogue)
+    sigma_y: float = 2e-4       # [MU] sensor noise
+    sigma_F_rel: float = 3e-3   # random force RMS / weight
+    tau_F_noise: float = 0.02   # [s] low-pass of the random force
+    quantise: bool = True
+    seed: int = 0
+    extra: dict = field(default_factory=dict)
+
+    def with_values(self, **kw: float) -> RigConfig:
+        names = {f.name for f in fields(self)}
+        bad = sorted(set(kw) - names)
+        if bad:
+            raise ValueError(f"unknown rig parameter(s): {', '.join(bad)}")
+        return replace(self, **kw)
+
+
+def position_to_mu(cfg: RigConfig, x: float | np.ndarray) -> float | np.ndarray:
+    """Noise-free A/D reading [MU] at position x [m] (Eq. 12, 13 with the sensor nonlinearity)."""
+    return cfg.k_AD * (cfg.k_x * x + cfg.y_0 + cfg.k_x2 * x * (x - cfg.x_cal)) + cfg.y_MU0
+
+
+def _position_for(cfg: RigConfig, y: float) -> float:
+    lo, hi = cfg.x_min, cfg.x_max
+    for _ in range(200):                    # bisection: the reading grows with x on the travel
+        mid = 0.5 * (lo + hi)
+        if position_to_mu(cfg, mid) < y:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def reference(kind: str, duration: float, ts: float = 1e-3, seed: int = 0, cfg: RigConfig | None = None) -> np.ndarray:
+    """A position reference [MU]: ``square`` (3.0 ↔ 3.5 mm, period 3 s as Sec. 5), ``sine`` (3.2 mm
+    ± 0.6 mm at 0.25 Hz), ``steps`` (random staircase across 2.0–4.5 mm, steps of 0.15–0.5 mm every
+    0.6–1.4 s: the most informative), ``chirp`` (3.2 mm ± 0.25 mm, 0.1 → 5 Hz)."""
+    cfg = cfg or RigConfig()
+    n = int(round(duration / ts))
+    t = np.arange(n) * ts
+    rng = np.random.default_rng(seed)
+    if kind == "square":
+        x = np.where(np.floor(t / 1.5).astype(int) % 2 == 0, 3.0e-3, 3.5e-3)
+    elif kind == "sine":
+        x = 3.2e-3 + 0.6e-3 * np.sin(2 * np.pi * 0.25 * t)
+    elif kind == "steps":
+        x = np.empty(n)
+        level, k = 3.2e-3, 0
+        while k < n:
+            length = int(rng.uniform(0.6, 1.4) / ts)
+            x[k:k + length] = level
+            k += length
+            delta = rng.uniform(0.15e-3, 0.5e-3) * rng.choice([-1.0, 1.0])
+            if not 2.0e-3 <= level + delta <= 4.5e-3:
+                delta = -delta
+            level += delta
+    elif kind == "chirp":
+        f0, f1 = 0.1, 5.0
+        phase = 2 * np.pi * (f0 * t + (f1 - f0) * t**2 / (2 * duration))
+        x = 3.2e-3 + 0.25e-3 * np.sin(phase)
+    else:
+        raise ValueError(f"unknown reference {kind!r}: choose square, sine, steps or chirp")
+    base = RigConfig()          # the reference is defined on the nominal sensor
+    return np.asarray(position_to_mu(base, x), dtype=float)
+
+
+def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float = 2.0, ki: float = 2.97,
+                 kd: float = 0.01, u_min: float = 0.0, u_max: float = 1.0, noise: bool = True) -> dict[str, np.ndarray]:
+    """The rig in closed loop with the paper's PID against reference ``w`` [MU].
+
+    Returns t [s], w, u (D/A value), y (A/D reading) [MU] and the true x [m], v [m/s], i [A]."""
+    c = cfg
+    rng = np.random.default_rng(c.seed)
+    n = len(w)
+    mg = c.m_k * c.g
+    kc = c.k_c * (c.x_0 - 3.2e-3) ** (c.n - 2.0)
+    expo = c.n
+
+    def force(i: float, x: float) -> float:
+        return kc * i * i / (c.x_0 - x) ** expo
+
+    def command(u_mu: float) -> float:
+        volts = c.k_DA * min(max(u_mu, -1.0), 1.0) + c.u_0
+        return min(max(c.k_i * volts, 0.0), c.i_max)
+
+    # settled start at the first reference value
+    x = _position_for(c, float(w[0]))
+    i_eq = min(math.sqrt(mg * (c.x_0 - x) ** expo / kc), c.i_max)
+    u_hold = (i_eq / c.k_i - c.u_0) / c.k_DA
+    v, i, F = 0.0, i_eq, force(i_eq, x)
+
+    h_max = min(1e-4, c.T_a / 10 if c.T_a > 0 else 1.0, c.T_F / 4 if c.T_F > 0 else 1.0)
+    nsub = max(1, int(math.ceil(ts / h_max - 1e-9)))
+    lag_i, lag_F = c.T_a > 0, c.T_F > 0
+    Ta, TF, kfv, m = c.T_a, c.T_F, c.k_FV, c.m_k
+    fc = c.F_c
+
+    def accel(xx: float, vv: float, ff: float, fr: float) -> float:
+        a = (ff - kfv * vv + fr) / m - c.g
+        if fc > 0:
+            a -= fc * math.tanh(vv / 1e-4) / m
+        return a
+
+    # random force: low-passed Gaussian, RMS sigma_F
+    sigma_F = c.sigma_F_rel * mg if noise else 0.0
+    a_lp = math.exp(-ts / c.tau_F_noise)
+    fr = 0.0
+    noise_y = rng.standard_normal(n) * (c.sigma_y if noise else 0.0)
+    noise_f = rng.standard_normal(n)
+
+    m_delay = int(math.floor(c.T_d / ts + 1e-9))
+    r_delay = c.T_d - m_delay * ts
+    if r_delay < 1e-12:
+        r_delay = 0.0
+    dac = np.empty(n)
+    out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
+    integral, e_prev = u_hold, 0.0
+    u_hold_q = round(u_hold / LSB) * LSB if c.quantise else u_hold
+
+    def dac_at(j: int) -> float:
+        return dac[j] if j >= 0 else u_hold_q
+
+    def integrate(span: float, u_val: float, steps: int) -> None:
+        nonlocal x, v, i, F
+        ic = command(u_val)
+        if not lag_i:
+            i = ic
+        h = span / steps
+        for _ in range(steps):
+            # derivatives of (x, v, i, F)
+            def d(xx: float, vv: float, ii: float, ff: float) -> tuple[float, float, float, float]:
+                fs = force(ii, xx)
+                f_act = ff if lag_F else fs
+                return (vv, accel(xx, vv, f_act, fr), (ic - ii) / Ta if lag_i else 0.0,
+                        (fs - ff) / TF if lag_F else 0.0)
+
+            k1 = d(x, v, i, F)
+            k2 = d(x + h / 2 * k1[0], v + h / 2 * k1[1], i + h / 2 * k1[2], F + h / 2 * k1[3])
+            k3 = d(x + h / 2 * k2[0], v + h / 2 * k2[1], i + h / 2 * k2[2], F + h / 2 * k2[3])
+            k4 = d(x + h * k3[0], v + h * k3[1], i + h * k3[2], F + h * k3[3])
+            x += h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+            v += h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+            if lag_i:
+                i += h / 6 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
+            if lag_F:
+                F += h / 6 * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3])
+            # inelastic stops, clamped at the end of each substep
+            if x >= c.x_max:
+                x, v = c.x_max, min(v, 0.0)
+            elif x <= c.x_min:
+                x, v = c.x_min, max(v, 0.0)
+
+    two_pi_f = 2 * math.pi * c.f_d
+    for k in range(n):
+        t = k * ts
+        yv = c.k_x * x + c.y_0 + c.k_x2 * x * (x - c.x_cal) + c.A_d * math.sin(two_pi_f * t + c.phi_d)
+        y = c.k_AD * yv + c.y_MU0 + noise_y[k]
+        y = min(max(y, -1.0), 1.0)
+        if c.quantise:
+            y = round(y / LSB) * LSB
+        out["y"][k], out["x"][k], out["v"][k], out["i"][k] = y, x, v, i
+        e = w[k] - y
+        integ = integral + ki * ts * e
+        u = kp * e + integ + kd * (e - e_prev) / ts
+        u = min(max(u, u_min), u_max)
+        integral, e_prev = integ, e
+        if c.quantise:
+            u = round(u / LSB) * LSB
+        out["u"][k] = u
+        dac[k] = u
+        fr = a_lp * fr + math.sqrt(1 - a_lp * a_lp) * sigma_F * noise_f[k]
+        # the delayed D/A value switches at t_k + r_delay inside this sample
+        if r_delay > 0:
+            n1 = max(1, int(round(nsub * r_delay / ts)))
+            n2 = max(1, nsub - n1)
+            integrate(r_delay, dac_at(k - m_delay - 1), n1)
+            integrate(ts - r_delay, dac_at(k - m_delay), n2)
+        else:
+            integrate(ts, dac_at(k - m_delay), nsub)
+    return {"t": np.arange(n) * ts, "w": np.asarray(w, float), **out}
