@@ -418,6 +418,24 @@ def _uncertainty(prob: Problem, names: Sequence[str], values: Mapping[str, float
     return {n: float(math.sqrt(max(cov[k, k], 0.0)) * sc[k]) for k, n in enumerate(names)}
 
 
+def _static_start(rec: Record, base: dict[str, float], say: Callable[[str], None]) -> dict[str, float]:
+    """Starting values of k_c and x_0 from the paper's least-squares fit of Eq. 14 on the record's
+    settled segments (Sec. 3.4.2), when it has them and they lie inside the calibration bounds."""
+    from .identify import equilibrium_points, least_squares_eq14
+
+    try:
+        x, u_v = equilibrium_points(rec, base)
+        lq = least_squares_eq14(x, u_v, base["m_k"], base["g"])
+    except ValueError:
+        return {}
+    k_c = lq["k_f"] / base["k_i"] ** 2
+    bounds = {n: (lo, hi) for n, _, lo, hi in CALIBRATED}
+    if not (bounds["k_c"][0] < k_c < bounds["k_c"][1] and bounds["x_0"][0] < lq["x_0"] < bounds["x_0"][1]):
+        return {}
+    say(f"starting from the Eq. 14 least-squares fit: k_c = {k_c:.4g} N.m2/A2, x_0 = {lq['x_0'] * 1e3:.3f} mm")
+    return {"k_c": k_c, "x_0": lq["x_0"]}
+
+
 def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int | None = None,
              progress: Callable[[str], None] | None = None, start: Mapping[str, float] | None = None) -> Diagnosis:
     """Runs the whole pipeline on a record. ``effects``: the catalogue entries to consider
@@ -431,8 +449,9 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
             raise ValueError(f"unknown effect {e!r}: choose from {', '.join(CATALOGUE)}")
     workers = workers or min(2, os.cpu_count() or 1)
     base = baseline_params()
-    if start:
-        base.update({k: float(v) for k, v in start.items()})
+    if start is None:
+        start = _static_start(rec, base, say)
+    base.update({k: float(v) for k, v in start.items()})
     n = rec.n
     block = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
     fit_mask, hold_mask, all_mask = block, ~block, np.ones(n, bool)

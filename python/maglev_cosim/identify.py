@@ -66,7 +66,7 @@ def quasi_static_points(rec: Record, *, window: float = 0.2, n_bins: int = 20) -
     y = rec.y[: m * k].reshape(m, k).mean(axis=1)
     u = rec.u[: m * k].reshape(m, k).mean(axis=1)
     w = rec.w[: m * k].reshape(m, k)
-    slow = np.ptp(w, axis=1) < 0.01
+    slow = np.ptp(w, axis=1) < 0.03
     if slow.sum() < 2:
         return []
     edges = np.linspace(y[slow].min(), y[slow].max() + 1e-12, n_bins + 1)

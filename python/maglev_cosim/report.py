@@ -62,6 +62,26 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
     plt.close(fig)
     files.append("measured_vs_simulated.png")
 
+    # zoom on the 0.6 s where the calibrated baseline misses most
+    err = np.convolve((rec.u - before["u"]) ** 2, np.ones(300), mode="same")
+    c = int(np.argmax(err))
+    a, b = max(0, c - 200), min(rec.n, c + 400)
+    fig, ax = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
+    for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
+        if sig == "y":
+            ax[k].plot(rec.t[a:b], rec.w[a:b], color="0.6", lw=1, label="reference w")
+        ax[k].plot(rec.t[a:b], meas[a:b], color="k", lw=1, label=f"measured {sig}")
+        ax[k].plot(rec.t[a:b], before[sig][a:b], color="tab:red", lw=1, label="simulated, before")
+        ax[k].plot(rec.t[a:b], after[sig][a:b], color="tab:blue", lw=1, ls="--", label="simulated, after")
+        ax[k].set_ylabel(f"{sig} [MU]")
+        ax[k].legend(loc="upper right", fontsize=8, ncol=4)
+    ax[1].set_xlabel("t [s]")
+    fig.suptitle("Zoom where the calibrated baseline misses most")
+    fig.tight_layout()
+    fig.savefig(out / "zoom.png", dpi=110)
+    plt.close(fig)
+    files.append("zoom.png")
+
     fig, ax = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
         ax[k].plot(rec.t, meas - before[sig], color="tab:red", lw=0.6, label="before")
