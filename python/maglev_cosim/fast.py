@@ -73,7 +73,7 @@ def build() -> Path:
                        sources=[str(CDIR / s) for s in SOURCES], include_dirs=[str(CDIR)],
                        # cffi's generated glue is not -Wpedantic clean; our C files are built with
                        # -Wall -Wextra -Wpedantic -Werror by CMake (target maglev_replay_strict)
-                       extra_compile_args=["-O2", "-std=gnu99"],
+                       extra_compile_args=["-O3", "-std=gnu99"],
                        libraries=["m"])
         try:
             out = ffi.compile(tmpdir=str(BUILD), verbose=False)
