@@ -57,8 +57,11 @@ def cmd_step(a: argparse.Namespace) -> dict:
     from .pid import PIDConfig
     from .reference import simulate_closed_loop_reference
 
+    from .fmu import ensure_fmu
+
     out = Path(a.out)
     p = resolve_params(a.params)
+    fmu = ensure_fmu(a.fmu)
     pid = PIDConfig()
     n = int(round(a.duration / pid.ts))
     if n < 10:
@@ -68,7 +71,7 @@ def cmd_step(a: argparse.Namespace) -> dict:
     _progress(f"closed loop on the FMU: {a.reference} of {a.amplitude} MU from x = {a.position * 1e3:.2f} mm, "
               f"{a.duration} s at {1 / pid.ts:.0f} Hz (parameters: {a.params})")
     t0 = time.perf_counter()
-    res = simulate_closed_loop(w, params=p, x_op=a.position, pid=pid, fmu=a.fmu)
+    res = simulate_closed_loop(w, params=p, x_op=a.position, pid=pid, fmu=fmu)
     t_fmu = time.perf_counter() - t0
     _progress("same experiment on the independent pure-Python reference plant")
     ref = simulate_closed_loop_reference(p, w, x_op=a.position, pid=pid)

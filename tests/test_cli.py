@@ -1,0 +1,107 @@
+"""The command line: files written, JSON keys, one-line errors and nothing written on bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from fmpy.validation import validate_fmu
+
+
+def cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "maglev_cosim.cli", *args], capture_output=True, text=True,
+                          timeout=600)
+
+
+def test_step_writes_csv_png_json(tmp_path, fmu_path):
+    r = cli("step", "--amplitude", "0.05", "--duration", "1.0", "--out", str(tmp_path), "--fmu", str(fmu_path))
+    assert r.returncode == 0, r.stderr
+    data = json.loads((tmp_path / "step.json").read_text())
+    assert data["fmu_vs_reference"]["max_abs_dy"] <= 1e-6
+    assert data["step_info"]["Overshoot"] > 0
+    assert (tmp_path / "step.png").stat().st_size > 10000
+    assert (tmp_path / "step.csv").read_text().count("\n") > 1000
+
+
+def test_linearize_json(tmp_path):
+    js = tmp_path / "lin.json"
+    r = cli("linearize", "--params", "eq18", "--current", "0.5612", "--json", str(js), "--plots", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    d = json.loads(js.read_text())
+    assert {"A", "B", "C", "D", "poles"} <= set(d)
+    assert d["B"][2][0] == pytest.approx(500.0)
+    assert (tmp_path / "root_locus.png").exists() and (tmp_path / "closed_loop_bode.png").exists()
+
+
+def test_bad_record_gives_one_line_and_writes_nothing(tmp_path):
+    rec = tmp_path / "bad.csv"
+    rec.write_text("# ts: 0.001\nt,w,u\n0.0,0.4,0.3\n")
+    out = tmp_path / "out"
+    r = cli("diagnose", str(rec), "--out", str(out))
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"{rec}:2:1:" in lines[0] and "y" in lines[0]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("args, words", [
+    (["synth", "--out", "x.csv", "--effect", "warp:k=1"], "unknown effect 'warp'"),
+    (["step", "--out", "o", "--fmu", "/no/such.fmu"], "FMU not found"),
+    (["step", "--out", "o", "--params", "nosuchset"], "unknown parameter set"),
+    (["identify", "/no/such.csv"], "file not found"),
+])
+def test_errors_are_one_line(tmp_path, args, words):
+    r = subprocess.run([sys.executable, "-m", "maglev_cosim.cli", *args], capture_output=True, text=True,
+                       cwd=tmp_path, timeout=120)
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0] and "Traceback" not in r.stderr, r.stderr
+
+
+def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_path, fmu_path):
+    rec = tmp_path / "rec.csv"
+    r = cli("synth", "--out", str(rec), "--effect", "delay:T_d=0.003", "--reference", "square", "--seed", "2")
+    assert r.returncode == 0, r.stderr
+    out = tmp_path / "diag"
+    r = cli("diagnose", str(rec), "--out", str(out), "--fmu", str(fmu_path))
+    assert r.returncode == 0, r.stderr
+    assert "round 1" in r.stderr                 # progress while it works
+    d = json.loads((out / "diagnosis.json").read_text())
+    assert {"record", "before", "after", "selected", "parameters", "candidates"} <= set(d)
+    assert d["selected"] == ["delay"] and d["parameters"]["T_d"] == pytest.approx(0.003, rel=0.1)
+    for c in d["candidates"]:
+        assert {"effect", "parameters", "rms_y", "rms_u", "accepted"} <= set(c)
+    report = (out / "report.md").read_text()
+    for png in ("measured_vs_simulated.png", "residual.png", "spectrum.png", "zoom.png"):
+        assert png in report and (out / png).stat().st_size > 10000
+    assert "Criterion" in report
+    fmu = out / "maglev_calibrated.fmu"
+    assert validate_fmu(str(fmu)) == []
+    from fmpy import read_model_description
+
+    md = {v.name: v for v in read_model_description(str(fmu)).modelVariables}
+    assert float(md["T_d"].start) == pytest.approx(d["parameters"]["T_d"])
+    assert float(md["T_a"].start) == 0.0
+
+
+def test_identify_prints_the_papers_values(tmp_path):
+    rec = tmp_path / "rec.csv"
+    assert cli("synth", "--out", str(rec), "--reference", "square", "--seed", "4").returncode == 0
+    js = tmp_path / "id.json"
+    r = cli("identify", str(rec), "--json", str(js))
+    assert r.returncode == 0, r.stderr
+    assert "least_squares" in r.stdout and "0.0083" in r.stdout
+    d = json.loads(js.read_text())
+    assert d["least_squares"]["x_0"] == pytest.approx(0.0083, rel=0.02)
+    assert d["least_squares"]["k_c"] == pytest.approx(6.9e-6, rel=0.03)
+    assert d["simplex"]["k_FV"] == pytest.approx(0.03, rel=0.3)
+
+
+def test_bench_prints_tables(fmu_path):
+    r = cli("bench", "--duration", "1", "--no-diagnose", "--fmu", str(fmu_path))
+    assert r.returncode == 0, r.stderr
+    assert "per step [us]" in r.stdout and "Communication-step independence" in r.stdout
+    assert "cffi fast path" in r.stdout
