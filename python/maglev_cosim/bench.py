@@ -80,7 +80,7 @@ def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, di
         from .synth import synth_record
 
         with tempfile.TemporaryDirectory() as tmp:
-            path = synth_record(Path(tmp) / "bench.csv", effects={"delay": {"T_d": 0.004}}, reference="steps",
+            path = synth_record(Path(tmp) / "bench.csv", effects={"delay": {"T_d": 0.0025}}, reference="steps",
                                 duration=12.0, seed=3)
             rec = read_record(path)
             t0 = time.perf_counter()

@@ -269,7 +269,7 @@ def cmd_demo(a: argparse.Namespace) -> dict:
     cmd_linearize(argparse.Namespace(position=0.0032, params="eq18", current=0.5612, json=str(out / "linearize.json"),
                                      plots=str(out / "linearize")))
     rec_path = out / "record_undeclared_effect.csv"
-    cmd_synth(argparse.Namespace(out=str(rec_path), effect=["delay:T_d=0.004"], reference="steps", duration=12.0,
+    cmd_synth(argparse.Namespace(out=str(rec_path), effect=["delay:T_d=0.0025"], reference="steps", duration=12.0,
                                  seed=a.seed, no_noise=False, param=None))
     d = cmd_diagnose(argparse.Namespace(record=str(rec_path), out=str(out / "diagnosis"), fmu=str(fmu),
                                         effects=None, workers=None))

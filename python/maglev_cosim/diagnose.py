@@ -290,15 +290,18 @@ def _calibrated_x0(values: Mapping[str, float]) -> list[float]:
 
 
 def starts_for(effect: Effect, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
-    """Starting values for an effect's parameters (in fit coordinates)."""
+    """Starting values for an effect's parameters (in fit coordinates). One-parameter effects get
+    a dense grid: near the stability limit the replay error is far from quadratic in a lag or a
+    delay, and a coarse start can leave least squares in a side valley."""
     if effect.name in ("amplifier_lag", "force_lag", "delay"):
-        return [[0.5e-3], [2e-3], [5e-3], [1.2e-2]]
+        lo = max(effect.bounds[0][0], 2.5e-4)
+        return [[float(v)] for v in np.concatenate([np.linspace(lo, 4e-3, 16), np.linspace(4.5e-3, 1.5e-2, 15)])]
     if effect.name == "sensor_nonlinearity":
-        return [[-2e4], [-5e3], [5e3], [2e4]]
+        return [[float(v)] for v in np.linspace(-6e4, 6e4, 25)]
     if effect.name == "current_saturation":
         sim = replay(prob.rec, {**prob.base, **current})
         i = np.sort(sim["i"])
-        return [[float(i[int(q * (len(i) - 1))])] for q in (0.999, 0.99, 0.95, 0.8)]
+        return [[float(i[int(q * (len(i) - 1))])] for q in (0.9999, 0.999, 0.995, 0.99, 0.98, 0.95, 0.9, 0.8, 0.7)]
     if effect.name == "periodic_disturbance":
         sim = replay(prob.rec, {**prob.base, **current})
         peaks = spectral_peaks(prob.rec.u - sim["u"], prob.rec.ts, count=2)
