@@ -10,6 +10,7 @@ from __future__ import annotations
 import fcntl
 import importlib.util
 import math
+import re
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -23,21 +24,11 @@ MODULE = "_maglev_fast"
 SOURCES = ("maglev_plant.c", "maglev_replay.c")
 HEADERS = ("maglev_plant.h", "maglev_replay.h")
 
-_CDEF = """
-typedef struct {
-    double ts, kp, ki, kd, u_min, u_max;
-    double tf;
-    int anti_windup;
-} MaglevPid;
-int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const double *w, size_t n,
-                              double u_hold, double *u, double *y, double *x, double *v, double *i,
-                              char *msg, size_t msglen);
-int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, double ts, double *y,
-                            double *x, double *v, double *i, char *msg, size_t msglen);
-int maglev_replay_nparams(void);
-const char *maglev_replay_param_name(int k);
-double maglev_replay_param_default(int k);
-"""
+def _cdef() -> str:
+    """The declarations of c/maglev_replay.h, for cffi (preprocessor lines and comments removed)."""
+    text = (CDIR / "maglev_replay.h").read_text()
+    text = re.sub(r"/\*.*?\*/", "", text, flags=re.S)
+    return "\n".join(line for line in text.splitlines() if not line.lstrip().startswith("#"))
 
 
 class FastPathBuildError(RuntimeError):
@@ -68,7 +59,7 @@ def build() -> Path:
         if built is not None and not _stale(built):
             return built
         ffi = cffi.FFI()
-        ffi.cdef(_CDEF)
+        ffi.cdef(_cdef())
         ffi.set_source(MODULE, '#include "maglev_replay.h"',
                        sources=[str(CDIR / s) for s in SOURCES], include_dirs=[str(CDIR)],
                        # cffi's generated glue is not -Wpedantic clean; our C files are built with

@@ -22,15 +22,6 @@ GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 MODEL_IDENTIFIER = "maglev"
 SOURCE_FILES = ("maglev_fmu.c", "maglev_plant.c")
 
-_CDEF = """
-typedef struct {
-    const char *name;
-    int causality;
-    double start;
-    const char *unit;
-    const char *description;
-} MaglevVariable;
-"""
 
 # SI base-unit exponents of every unit the table uses.
 _UNITS: dict[str, dict[str, float]] = {
@@ -72,8 +63,12 @@ class Variable:
 def read_table(library: str | Path) -> list[Variable]:
     """Reads ``maglev_variables`` out of a compiled plant/FMU shared library."""
     ffi = cffi.FFI()
-    ffi.cdef(_CDEF)
     header = (Path(__file__).resolve().parents[2] / "c" / "maglev_plant.h").read_text()
+    for name in ("MaglevCausality", "MaglevVariable"):     # the C declarations, as the header has them
+        decl = re.search(r"typedef (?:enum|struct) \{[^}]*\} " + name + ";", header)
+        if decl is None:
+            raise RuntimeError(f"c/maglev_plant.h: {name} not found")
+        ffi.cdef(decl.group(0))
     enum = re.search(r"typedef enum \{(.*?)\} MaglevVR;", header, re.S)
     if enum is None:
         raise RuntimeError("c/maglev_plant.h: MaglevVR enum not found")
