@@ -91,9 +91,14 @@ class Problem:
 
 
 def residuals(prob: Problem, values: Mapping[str, float], mask: np.ndarray | None = None) -> np.ndarray:
-    """Weighted residual vector (y errors, then u errors) of a replay with ``values`` applied."""
-    sim = replay(prob.rec, {**prob.base, **values})
+    """Weighted residual vector (y errors, then u errors) of a replay with ``values`` applied.
+    A parameter set the plant rejects (say x_0 pushed below x_max) costs as much as a ball
+    lying on a stop: the search then turns away from it instead of failing."""
     m = prob.mask if mask is None else mask
+    try:
+        sim = replay(prob.rec, {**prob.base, **values})
+    except ValueError:
+        sim = {"y": np.zeros(prob.rec.n), "u": np.full(prob.rec.n, prob.rec.u_max)}
     return np.concatenate([(prob.rec.y - sim["y"])[m] / prob.sigma_y, (prob.rec.u - sim["u"])[m] / prob.sigma_u])
 
 
@@ -297,7 +302,7 @@ def starts_for(effect: Effect, prob: Problem, current: Mapping[str, float]) -> l
         lo = max(effect.bounds[0][0], 2.5e-4)
         return [[float(v)] for v in np.concatenate([np.linspace(lo, 4e-3, 16), np.linspace(4.5e-3, 1.5e-2, 15)])]
     if effect.name == "sensor_nonlinearity":
-        return [[float(v)] for v in np.linspace(-6e4, 6e4, 25)]
+        return [[float(v)] for v in np.linspace(-6e4, 6e4, 24)]     # 0 excluded: the fit starts off it
     if effect.name == "current_saturation":
         sim = replay(prob.rec, {**prob.base, **current})
         i = np.sort(sim["i"])
@@ -329,20 +334,34 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) ->
     else:
         e_names, e_scales, e_bounds = list(eff.params), list(eff.scales), list(eff.bounds)
     starts = starts_for(eff, prob, current)
+
+    def start_values(z: Sequence[float]) -> dict[str, float]:
+        vals = {**current, **_periodic_transform(e_names, np.array(z))}
+        if eff.name == "sensor_nonlinearity":
+            # a bent sensor also shifts the reading at the operating point, which x_0 absorbs once
+            # recalibrated: shift x_0 with it, so that the grid judges the bend, not the offset
+            k_x = prob.base["k_x"]
+            xbar = float(np.mean((prob.rec.y - prob.base["y_MU0"]) / prob.base["k_AD"] - prob.base["y_0"])) / k_x
+            k2 = vals["k_x2"] - current.get("k_x2", 0.0)
+            x0 = current["x_0"] - k2 * xbar * (xbar - prob.base["x_cal"]) / (k_x + k2 * (2 * xbar - prob.base["x_cal"]))
+            lo, hi = next((lo, hi) for n, _, lo, hi in CALIBRATED if n == "x_0")
+            vals["x_0"] = min(max(x0, lo), hi)
+        return vals
+
     # choose the best start with the baseline held, then fit everything from it
     best, best_cost = None, math.inf
-    for s in starts:
-        c = float(np.mean(residuals(prob, {**current, **_periodic_transform(e_names, np.array(s))}) ** 2))
+    for z in starts:
+        c = float(np.mean(residuals(prob, start_values(z)) ** 2))
         if c < best_cost:
-            best, best_cost = s, c
+            best, best_cost = z, c
+    start_cal = _calibrated_x0(start_values(best))
     if eff.name == "periodic_disturbance":
         # amplitude and phase first (a nearly linear problem), then all together
         pre = fit(Problem(prob.rec, {**prob.base, **current}, prob.sigma_y, prob.sigma_u, prob.mask),
                   ["_a", "_b"], best[:2], [0.01, 0.01], [(-1.0, 1.0), (-1.0, 1.0)], max_nfev=20)
         a, b = pre.values["A_d"] * math.cos(pre.values["phi_d"]), pre.values["A_d"] * math.sin(pre.values["phi_d"])
         best = [a, b, best[2]]
-    f = fit(prob, cal_names + e_names, _calibrated_x0(current) + list(best), cal_scales + e_scales,
-            cal_bounds + e_bounds)
+    f = fit(prob, cal_names + e_names, start_cal + list(best), cal_scales + e_scales, cal_bounds + e_bounds)
     return {"effect": effect_name, "values": {**current, **f.values}, "fit_cost": f.cost, "nfev": f.nfev}
 
 
@@ -562,19 +581,36 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
     residual_after = analyse_residual(rec, sim_after)
     noise = noise_floor(rec)
     parameters = {k: float(v) for k, v in {**base, **final_values}.items()}
+    ratio_u = after["rms_u"] / noise["rms_u_from_sensor_noise"] if noise["rms_u_from_sensor_noise"] > 0 else None
     unexplained = {
         "rms_y_over_sensor_noise": after["rms_y"] / noise["sigma_y"] if noise["sigma_y"] > 0 else None,
-        "rms_u_over_noise_response": (after["rms_u"] / noise["rms_u_from_sensor_noise"]
-                                      if noise["rms_u_from_sensor_noise"] > 0 else None),
+        "rms_u_over_noise_response": ratio_u,
         "peaks_left_u": [p for p in residual_after["peaks_u"] if p["prominence"] > 30],
+        "ambiguous": [],
         "note": "",
     }
+    # an effect chosen over a rival that explains nearly as much is a weak choice: say so
+    for rnd in rounds:
+        acc = sorted((c for c in candidates if c["round"] == rnd["round"] and c["accepted"]),
+                     key=lambda c: -c["held_out_gain"])
+        if len(acc) > 1 and acc[1]["held_out_gain"] > 0.8 * acc[0]["held_out_gain"]:
+            unexplained["ambiguous"].append({"round": rnd["round"], "chosen": acc[0]["effect"],
+                                             "rival": acc[1]["effect"], "gains": [acc[0]["held_out_gain"],
+                                                                                  acc[1]["held_out_gain"]]})
+    notes = []
     if unexplained["peaks_left_u"]:
-        unexplained["note"] = ("narrow spectral peaks remain in the u residual: something periodic "
-                               "is still unexplained")
-    elif before["rms_u"] > 0 and after["rms_u"] > 0.8 * before["rms_u"] and not selected:
-        unexplained["note"] = ("no effect of the catalogue explains the residual better than noise; what "
-                               "remains is noise or an effect outside the catalogue")
+        notes.append("narrow spectral peaks remain in the u residual: something periodic is still unexplained")
+    if ratio_u is not None and ratio_u > 1.1:
+        notes.append(f"the u residual is {ratio_u:.2f} times what sensor noise alone explains: the final model "
+                     "still lacks something (an effect outside the catalogue, or disturbances the record does "
+                     "not show)")
+    elif ratio_u is not None:
+        notes.append(f"the u residual is {ratio_u:.2f} times what sensor noise alone explains")
+    for a in unexplained["ambiguous"]:
+        notes.append(f"in round {a['round']} {a['rival']} explains nearly as much as {a['chosen']} (held-out "
+                     f"reductions {100 * a['gains'][0]:.1f} % and {100 * a['gains'][1]:.1f} %): the choice is weak, "
+                     "and an effect outside the catalogue with the same signature cannot be excluded")
+    unexplained["note"] = "; ".join(notes)
     elapsed = time.perf_counter() - t0
     say(f"done in {elapsed:.1f} s: before rms_y {before['rms_y']:.5f} rms_u {before['rms_u']:.5f}; "
         f"after rms_y {after['rms_y']:.5f} rms_u {after['rms_u']:.5f}; selected: {selected or 'none'}")
