@@ -23,7 +23,7 @@ def step_w(p, amplitude: float, n: int = 2000) -> np.ndarray:
 
 @pytest.mark.parametrize("name", ["section3", "eq18"])
 def test_fmu_and_pure_python_reference_agree(fmu_path, name):
-    """0.05 MU step from 3.2 mm over 2 s. Measured: max |dy| 2.6e-9 MU, |du| 6.1e-9 MU (section3)."""
+    """0.05 MU step from 3.2 mm over 2 s. Measured: max |dy| 6.5e-9 MU, |du| 1.5e-8 MU (section3)."""
     p = get_params(name)
     w = step_w(p, 0.05)
     a = simulate_closed_loop(w, params=p, fmu=fmu_path)
@@ -34,7 +34,8 @@ def test_fmu_and_pure_python_reference_agree(fmu_path, name):
 
 
 def test_small_step_agrees_with_the_linear_discrete_loop(fmu_path):
-    """0.002 MU step: nonlinear FMU loop versus the ZOH-discretised Eq. 19 loop with the PID."""
+    """0.002 MU step: nonlinear FMU loop versus the ZOH-discretised Eq. 19 loop with the PID.
+    Measured: max deviation 1.4 % of the step size."""
     p = get_params("section3")
     amp = 0.002
     w = step_w(p, amp)
