@@ -52,6 +52,8 @@ def test_bad_record_gives_one_line_and_writes_nothing(tmp_path):
     (["step", "--out", "o", "--fmu", "/no/such.fmu"], "FMU not found"),
     (["step", "--out", "o", "--params", "nosuchset"], "unknown parameter set"),
     (["identify", "/no/such.csv"], "file not found"),
+    (["step", "--out", "o", "--duration", "-1"], "must be a positive finite number"),
+    (["frobnicate"], "invalid choice"),
 ])
 def test_errors_are_one_line(tmp_path, args, words):
     r = subprocess.run([sys.executable, "-m", "maglev_cosim.cli", *args], capture_output=True, text=True,

@@ -279,9 +279,17 @@ def cmd_demo(a: argparse.Namespace) -> dict:
 
 # ----------------------------------------------------------------------------- main
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors in one line (no usage dump), like every other failure here."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        print(f"{self.prog}: error: {message} (see {self.prog.split()[0]} --help)", file=sys.stderr)
+        raise SystemExit(2)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="maglev-cosim", description="CE152 magnetic levitation FMU toolkit")
-    sub = ap.add_subparsers(dest="command", required=True)
+    ap = _Parser(prog="maglev-cosim", description="CE152 magnetic levitation FMU toolkit")
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     s = sub.add_parser("step", help="closed-loop step (or square/sine) on the FMU, checked against the reference")
     s.add_argument("--amplitude", type=_finite, default=0.05, help="reference change [MU] (default 0.05)")
