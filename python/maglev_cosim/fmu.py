@@ -7,12 +7,13 @@ with preallocated ctypes arrays, so a closed loop at 1 kHz costs a few microseco
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import os
 import shutil
 import subprocess
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from fmpy import calloc, extract, free, read_model_description
@@ -71,9 +72,12 @@ _unzip_cache: dict[tuple[str, float], str] = {}
 
 
 def _unzipped(fmu: Path) -> str:
+    """The FMU extracted once per process (and removed when the process ends)."""
     key = (str(fmu.resolve()), fmu.stat().st_mtime)
     if key not in _unzip_cache:
-        _unzip_cache[key] = extract(str(fmu), unzipdir=tempfile.mkdtemp(prefix="maglev_fmu_"))
+        tmp = tempfile.mkdtemp(prefix="maglev_fmu_")
+        atexit.register(shutil.rmtree, tmp, True)
+        _unzip_cache[key] = extract(str(fmu), unzipdir=tmp)
     return _unzip_cache[key]
 
 
@@ -95,7 +99,7 @@ class FmuPlant:
 
     def __init__(self, start_values: Mapping[str, float] | None = None, *, fmu: str | Path | None = None,
                  start_time: float = 0.0, instance_name: str = "maglev",
-                 logger=None) -> None:
+                 logger: Callable[[int, str], None] | None = None) -> None:
         path = ensure_fmu(fmu)
         unzipdir = _unzipped(path)
         self.model_description = read_model_description(unzipdir)
