@@ -35,7 +35,10 @@ CASES = {
                              ["periodic_disturbance"], {"A_d": (0.008, 0.05), "f_d": (37.0, 0.002)}),
     "two_effects": ({"delay": {"T_d": 0.002}, "periodic_disturbance": {"A_d": 0.008, "f_d": 50.0, "phi_d": 0.0}},
                     None, ["delay", "periodic_disturbance"], {"T_d": (0.002, 0.10), "A_d": (0.008, 0.05)}),
+    "sine_reference_60Hz_pickup": ({"periodic_disturbance": {"A_d": 0.004, "f_d": 60.0, "phi_d": -2.0}}, None,
+                                   ["periodic_disturbance"], {"A_d": (0.004, 0.08), "f_d": (60.0, 0.002)}),
 }
+REFERENCE = {"sine_reference_60Hz_pickup": "sine"}
 
 _cache: dict[str, tuple] = {}
 
@@ -43,18 +46,19 @@ _cache: dict[str, tuple] = {}
 def run_case(name: str, tmp_path_factory) -> tuple:
     if name not in _cache:
         effects, params, *_ = CASES[name] if name in CASES else OUTSIDE[name]
-        path = synth_record(tmp_path_factory.mktemp(name) / "rec.csv", effects=effects, params=params, seed=SEED)
+        path = synth_record(tmp_path_factory.mktemp(name) / "rec.csv", effects=effects, params=params, seed=SEED,
+                            reference=REFERENCE.get(name, "steps"))
         rec = read_record(path)
         d = diagnose(rec)
         _cache[name] = (rec, d, effects, params)
     return _cache[name]
 
 
-def noise_floor(rec, effects, params) -> tuple[float, float]:
+def noise_floor(rec, effects, params, kind: str = "steps") -> tuple[float, float]:
     """RMS of the record against the same rig without noise or quantisation."""
     values = {k: v for e in effects.values() for k, v in e.items()}
     cfg = RigConfig(seed=SEED, sigma_y=0.0, sigma_F_rel=0.0, quantise=False).with_values(**(params or {}), **values)
-    clean = simulate_rig(reference("steps", rec.duration, rec.ts, SEED), cfg, noise=False)
+    clean = simulate_rig(reference(kind, rec.duration, rec.ts, SEED), cfg, noise=False)
     return (float(np.sqrt(np.mean((rec.y - clean["y"]) ** 2))), float(np.sqrt(np.mean((rec.u - clean["u"]) ** 2))))
 
 
@@ -66,7 +70,7 @@ def test_effect_found_recovered_and_residual_at_noise(name, tmp_path_factory):
     for p, (value, tol) in truth.items():
         assert d.parameters[p] == pytest.approx(value, rel=tol), (p, d.parameters[p], d.uncertainties.get(p))
         assert d.uncertainties[p] > 0 and math.isfinite(d.uncertainties[p])
-    floor_y, floor_u = noise_floor(rec, effects, params)
+    floor_y, floor_u = noise_floor(rec, effects, params, REFERENCE.get(name, "steps"))
     assert d.after["rms_y"] <= 1.25 * floor_y + 5e-5, (d.after, floor_y)
     assert d.after["rms_u"] <= 1.25 * floor_u + 5e-4, (d.after, floor_u)
     assert d.after["rms_u"] <= d.before["rms_u"] + 1e-9

@@ -357,7 +357,7 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) ->
     start_cal = _calibrated_x0(start_values(best))
     if eff.name == "periodic_disturbance":
         # amplitude and phase first (a nearly linear problem), then all together
-        pre = fit(Problem(prob.rec, {**prob.base, **current}, prob.sigma_y, prob.sigma_u, prob.mask),
+        pre = fit(Problem(prob.rec, {**prob.base, **current, "f_d": best[2]}, prob.sigma_y, prob.sigma_u, prob.mask),
                   ["_a", "_b"], best[:2], [0.01, 0.01], [(-1.0, 1.0), (-1.0, 1.0)], max_nfev=20)
         a, b = pre.values["A_d"] * math.cos(pre.values["phi_d"]), pre.values["A_d"] * math.sin(pre.values["phi_d"])
         best = [a, b, best[2]]
