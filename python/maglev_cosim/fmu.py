@@ -181,6 +181,8 @@ class FmuPlant:
         if self._fmu is not None:
             try:
                 self._fmu.terminate()
+            except Exception:  # noqa: BLE001 - an instance in the error state cannot terminate; free it anyway
+                pass
             finally:
                 self._fmu.freeInstance()
                 self._fmu = None
