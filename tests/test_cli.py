@@ -102,8 +102,11 @@ def test_identify_prints_the_papers_values(tmp_path):
     assert d["simplex"]["k_FV"] == pytest.approx(0.03, rel=0.3)
 
 
-def test_bench_prints_tables(fmu_path):
-    r = cli("bench", "--duration", "1", "--no-diagnose", "--fmu", str(fmu_path))
+def test_bench_prints_tables(fmu_path, tmp_path):
+    js = tmp_path / "bench.json"
+    r = cli("bench", "--duration", "1", "--no-diagnose", "--fmu", str(fmu_path), "--json", str(js))
     assert r.returncode == 0, r.stderr
+    d = json.loads(js.read_text())
+    assert d["closed_loop"]["steps"] == 1000 and d["closed_loop"]["fast_us_per_step"] > 0
     assert "per step [us]" in r.stdout and "Communication-step independence" in r.stdout
     assert "cffi fast path" in r.stdout

@@ -180,7 +180,10 @@ def _jsonable(o):
 def cmd_bench(a: argparse.Namespace) -> dict:
     from .bench import run_bench
 
-    return run_bench(fmu=a.fmu, record_seconds=a.duration, diagnose=not a.no_diagnose)
+    res = run_bench(fmu=a.fmu, record_seconds=a.duration, diagnose=not a.no_diagnose, json_path=a.json)
+    if a.json:
+        print(f"wrote {a.json}")
+    return res
 
 
 # ----------------------------------------------------------------------------- records
@@ -313,6 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fmu", default=None)
     s.add_argument("--duration", type=_positive, default=10.0, help="closed-loop length [s] (default 10)")
     s.add_argument("--no-diagnose", action="store_true", help="skip timing a 12 s diagnosis")
+    s.add_argument("--json", default=None, help="also write the figures to this JSON file")
     s.set_defaults(func=cmd_bench)
 
     s = sub.add_parser("diagnose", help="replay, calibrate, find and add the effect a record shows")
