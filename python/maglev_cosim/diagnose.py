@@ -108,8 +108,6 @@ class Fit:
 
     values: dict[str, float]
     cost: float                      # mean squared weighted residual on the fit samples
-    jac: np.ndarray | None = None    # in scaled coordinates
-    scales: np.ndarray | None = None
     nfev: int = 0
 
 
@@ -139,7 +137,7 @@ def fit(prob: Problem, names: Sequence[str], x0: Sequence[float], scales: Sequen
     r = least_squares(fun, z0, bounds=(lo, hi), diff_step=1e-6, x_scale=1.0, max_nfev=max_nfev,
                       ftol=1e-8, xtol=1e-8, gtol=1e-10)
     values = _periodic_transform(names, r.x * sc)
-    return Fit(values, float(np.mean(r.fun**2)), r.jac, sc, int(r.nfev))
+    return Fit(values, float(np.mean(r.fun**2)), int(r.nfev))
 
 
 def cost_on(prob: Problem, values: Mapping[str, float], mask: np.ndarray) -> float:
