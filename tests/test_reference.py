@@ -78,3 +78,19 @@ def test_delay_shifts_the_response_exactly():
     shift = int(round(td / 0.5e-3))
     assert np.allclose(ib[shift:], ia[:-shift], rtol=0, atol=1e-12)
     assert np.all(np.array(ib[: shift - 1]) == 0.0)
+
+
+def test_release_from_a_stop_when_the_current_jumps():
+    """With T_a = 0 (Eq. 5) the current, and so the net force, jumps when the input drops: the
+    ball must leave the upper stop at once, as the C plant does."""
+    p = get_params("baseline")
+    plant = ReferencePlant(p)
+    plant.reset(1.0)
+    for _ in range(300):
+        plant.step(1e-3)
+    assert plant.outputs()["x"] == p.x_max
+    plant.set_input(0.0)
+    for _ in range(10):
+        plant.step(1e-3)
+    x = plant.outputs()["x"]
+    assert x == pytest.approx(p.x_max - 0.5 * p.g * 0.01**2, rel=0.02)   # free fall, no current

@@ -110,6 +110,10 @@ class ReferencePlant:
                 self.z[3] = self._force(ic, self.z[0])
         t = t0
         while t1 - t > 1e-15:
+            if self.mode and self.mode * self._net(self.z, ic) < 0:
+                # the net force jumped away from the stop at the piece's start (an algebraic
+                # current or force): no sign change left for the release event to catch
+                self.mode = 0
             if self.mode == 0:
                 hit_top = lambda _t, z: z[0] - p.x_max  # noqa: E731
                 hit_bottom = lambda _t, z: z[0] - p.x_min  # noqa: E731
