@@ -13,7 +13,7 @@ from pathlib import Path
 import control
 import numpy as np
 
-from .linear import linearize, operating_point
+from .linear import linearize
 from .params import PlantParams
 from .pid import PIDConfig, pid_continuous_tf, pid_tf
 
@@ -136,7 +136,3 @@ def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PIDConfig, path: str
     plt.close(fig)
     return Path(path)
 
-
-def operating_input(p: PlantParams, x_op: float) -> float:
-    """Equilibrium D/A input [MU] at ``x_op`` (convenience for scripts)."""
-    return operating_point(p, x_op).u_MU
