@@ -24,6 +24,14 @@ typedef enum {
 #define MASK_GET (InitializationMode | StepComplete | StepFailed | Terminated | Error)
 #define MASK_SET (Instantiated | InitializationMode | StepComplete)
 
+/* An FMU state. The instance that made it owns it (a list, so that fmi2FreeInstance frees what
+ * the importer left behind, and a foreign or stale pointer is refused instead of followed). */
+typedef struct Snapshot {
+    FmuState state;
+    MaglevPlant plant;
+    struct Snapshot *prev, *next;
+} Snapshot;
+
 typedef struct {
     char name[128];
     fmi2CallbackFunctions cb;
@@ -33,6 +41,7 @@ typedef struct {
     int stop_defined;
     MaglevAllocator alloc;
     MaglevPlant plant;
+    Snapshot *snapshots;
 } Fmu;
 
 static const char *state_name(FmuState s) {
@@ -172,9 +181,17 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     return f;
 }
 
+static void snapshot_free(Fmu *f, Snapshot *s) {
+    if (s->prev) s->prev->next = s->next; else f->snapshots = s->next;
+    if (s->next) s->next->prev = s->prev;
+    maglev_release(&s->plant, &f->alloc);
+    f->cb.freeMemory(s);
+}
+
 void fmi2FreeInstance(fmi2Component c) {
     Fmu *f = c;
     if (!f) return;
+    while (f->snapshots) snapshot_free(f, f->snapshots);
     maglev_release(&f->plant, &f->alloc);
     f->state = StartAndEnd;
     f->cb.freeMemory(f);
@@ -186,9 +203,11 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
     Fmu *f = c;
     if (toleranceDefined && (!isfinite(tolerance) || tolerance <= 0))
         return error(f, "fmi2SetupExperiment: tolerance %g must be > 0 and finite", tolerance);
-    if (!isfinite(startTime)) return error(f, "fmi2SetupExperiment: startTime %g is not finite", startTime);
-    if (stopTimeDefined && (!isfinite(stopTime) || stopTime < startTime))
-        return error(f, "fmi2SetupExperiment: stopTime %g must be finite and >= startTime %g", stopTime, startTime);
+    if (!(fabs(startTime) <= MAGLEV_TIME_MAX))
+        return error(f, "fmi2SetupExperiment: startTime %g must be finite and within +-%g s", startTime, MAGLEV_TIME_MAX);
+    if (stopTimeDefined && !(stopTime >= startTime && stopTime <= MAGLEV_TIME_MAX))
+        return error(f, "fmi2SetupExperiment: stopTime %g must be >= startTime %g and <= %g s", stopTime, startTime,
+                     MAGLEV_TIME_MAX);
     f->start_time = startTime;
     f->stop_defined = stopTimeDefined ? 1 : 0;
     f->stop_time = stopTime;
@@ -246,21 +265,26 @@ fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nv
     GUARD("fmi2GetReal", MASK_GET);
     Fmu *f = c;
     if (!check_vrs(f, "fmi2GetReal", vr, nvr, value)) return fmi2Error;
-    /* Before initialisation ends the state is not set yet: outputs follow the start values. */
+    /* Before initialisation ends the state is not set yet: outputs are what initialisation would
+     * give, and cannot be given while the parameters contradict each other. */
     MaglevPlant view;
     const MaglevPlant *p = &f->plant;
+    char msg[MAGLEV_MSG_LEN];
     if (f->state == InitializationMode) {
-        view = f->plant;
-        view.hist.len = 0;
-        view.x = maglev_param(&view, VR_x_start);
-        view.v = maglev_param(&view, VR_v_start);
-        view.i = maglev_param(&view, VR_i_start);
-        view.F = 0;
-        maglev_set_param(&view, VR_T_F, 0.0); /* report the static force until the lag state exists */
-        view.time = f->start_time;
-        p = &view;
+        for (size_t k = 0; k < nvr; k++) {
+            if (maglev_variables[vr[k]].causality != MAGLEV_OUTPUT) continue;
+            if (maglev_preview(&f->plant, f->start_time, &view, msg, sizeof msg))
+                return error(f, "fmi2GetReal: output %s is undefined until the parameters agree: %s",
+                             maglev_variables[vr[k]].name, msg);
+            p = &view;
+            break;
+        }
     }
-    for (size_t k = 0; k < nvr; k++) value[k] = maglev_get(p, (MaglevVR)vr[k]);
+    for (size_t k = 0; k < nvr; k++) {
+        value[k] = maglev_get(p, (MaglevVR)vr[k]);
+        if (!isfinite(value[k]))
+            return error(f, "fmi2GetReal: variable %s is not finite (%g)", maglev_variables[vr[k]].name, value[k]);
+    }
     return fmi2OK;
 }
 
@@ -331,30 +355,44 @@ fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 /* ---- FMU state ---- */
 
-typedef struct {
-    FmuState state;
-    MaglevPlant plant;
-} Snapshot;
-
 #define MASK_FMUSTATE (Instantiated | InitializationMode | StepComplete | StepFailed | Terminated | Error)
+
+static Snapshot *owned(Fmu *f, const char *fn, fmi2FMUstate state) {
+    for (Snapshot *s = f->snapshots; s; s = s->next)
+        if (s == state) return s;
+    error(f, "%s: FMUstate %p was not made by this instance or was freed (move states between instances "
+          "with fmi2SerializeFMUstate)", fn, state);
+    return NULL;
+}
+
+static Snapshot *snapshot_new(Fmu *f) {
+    Snapshot *s = f->cb.allocateMemory(1, sizeof *s);
+    if (!s) return NULL;
+    memset(s, 0, sizeof *s);
+    s->next = f->snapshots;
+    if (s->next) s->next->prev = s;
+    f->snapshots = s;
+    return s;
+}
 
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     GUARD("fmi2GetFMUstate", MASK_FMUSTATE);
     Fmu *f = c;
     if (!FMUstate) return error(f, "fmi2GetFMUstate: FMUstate pointer is NULL");
-    Snapshot *s = *FMUstate;
-    if (!s) {
-        s = f->cb.allocateMemory(1, sizeof *s);
-        if (!s) return error(f, "fmi2GetFMUstate: out of memory");
-        memset(s, 0, sizeof *s);
-    } else {
+    MaglevPlant copy;
+    if (maglev_copy(&copy, &f->plant, &f->alloc)) return error(f, "fmi2GetFMUstate: out of memory");
+    Snapshot *s;
+    if (*FMUstate) {
+        if (!(s = owned(f, "fmi2GetFMUstate", *FMUstate))) {
+            maglev_release(&copy, &f->alloc);
+            return fmi2Error;
+        }
         maglev_release(&s->plant, &f->alloc);
-    }
-    if (maglev_copy(&s->plant, &f->plant, &f->alloc)) {
-        f->cb.freeMemory(s);
-        *FMUstate = NULL;
+    } else if (!(s = snapshot_new(f))) {
+        maglev_release(&copy, &f->alloc);
         return error(f, "fmi2GetFMUstate: out of memory");
     }
+    s->plant = copy;
     s->state = f->state;
     *FMUstate = s;
     return fmi2OK;
@@ -363,8 +401,9 @@ fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
     GUARD("fmi2SetFMUstate", MASK_FMUSTATE);
     Fmu *f = c;
-    const Snapshot *s = FMUstate;
-    if (!s) return error(f, "fmi2SetFMUstate: FMUstate is NULL");
+    if (!FMUstate) return error(f, "fmi2SetFMUstate: FMUstate is NULL");
+    const Snapshot *s = owned(f, "fmi2SetFMUstate", FMUstate);
+    if (!s) return fmi2Error;
     MaglevPlant copy;
     if (maglev_copy(&copy, &s->plant, &f->alloc)) return error(f, "fmi2SetFMUstate: out of memory");
     maglev_release(&f->plant, &f->alloc);
@@ -377,21 +416,11 @@ fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
     GUARD("fmi2FreeFMUstate", MASK_FMUSTATE);
     Fmu *f = c;
     if (!FMUstate) return error(f, "fmi2FreeFMUstate: FMUstate pointer is NULL");
-    Snapshot *s = *FMUstate;
-    if (!s) return fmi2OK;
-    maglev_release(&s->plant, &f->alloc);
-    f->cb.freeMemory(s);
+    if (!*FMUstate) return fmi2OK;
+    Snapshot *s = owned(f, "fmi2FreeFMUstate", *FMUstate);
+    if (!s) return fmi2Error;
+    snapshot_free(f, s);
     *FMUstate = NULL;
-    return fmi2OK;
-}
-
-/* Serialised form: one byte of FMU state, then the plant image (checksummed). */
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
-    GUARD("fmi2SerializedFMUstateSize", MASK_FMUSTATE);
-    Fmu *f = c;
-    const Snapshot *s = FMUstate;
-    if (!s || !size) return error(f, "fmi2SerializedFMUstateSize: FMUstate or size is NULL");
-    *size = 1 + maglev_serialized_size(&s->plant);
     return fmi2OK;
 }
 
@@ -401,15 +430,26 @@ static int state_code(FmuState s) {
     return -1;
 }
 
+/* Serialised form: the plant image, with the FMU state's code as its checksummed tag. */
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
+    GUARD("fmi2SerializedFMUstateSize", MASK_FMUSTATE);
+    Fmu *f = c;
+    if (!FMUstate || !size) return error(f, "fmi2SerializedFMUstateSize: FMUstate or size is NULL");
+    const Snapshot *s = owned(f, "fmi2SerializedFMUstateSize", FMUstate);
+    if (!s) return fmi2Error;
+    *size = maglev_serialized_size(&s->plant);
+    return fmi2OK;
+}
+
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size) {
     GUARD("fmi2SerializeFMUstate", MASK_FMUSTATE);
     Fmu *f = c;
-    const Snapshot *s = FMUstate;
-    if (!s || !serializedState) return error(f, "fmi2SerializeFMUstate: FMUstate or buffer is NULL");
-    size_t need = 1 + maglev_serialized_size(&s->plant);
+    if (!FMUstate || !serializedState) return error(f, "fmi2SerializeFMUstate: FMUstate or buffer is NULL");
+    const Snapshot *s = owned(f, "fmi2SerializeFMUstate", FMUstate);
+    if (!s) return fmi2Error;
+    size_t need = maglev_serialized_size(&s->plant);
     if (size < need) return error(f, "fmi2SerializeFMUstate: buffer of %zu bytes, %zu needed", size, need);
-    serializedState[0] = (fmi2Byte)state_code(s->state);
-    maglev_serialize(&s->plant, (unsigned char *)serializedState + 1);
+    maglev_serialize(&s->plant, (unsigned int)state_code(s->state), (unsigned char *)serializedState);
     return fmi2OK;
 }
 
@@ -418,26 +458,30 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedSta
     GUARD("fmi2DeSerializeFMUstate", MASK_FMUSTATE);
     Fmu *f = c;
     char msg[MAGLEV_MSG_LEN];
-    if (!serializedState || !FMUstate || size < 1)
-        return error(f, "fmi2DeSerializeFMUstate: empty buffer or NULL FMUstate pointer");
-    int code = (unsigned char)serializedState[0];
-    if (code < 1 || code > 6) return error(f, "fmi2DeSerializeFMUstate: invalid FMU state code %d", code);
+    if (!serializedState || !FMUstate) return error(f, "fmi2DeSerializeFMUstate: NULL buffer or FMUstate pointer");
+    if (*FMUstate && !owned(f, "fmi2DeSerializeFMUstate", *FMUstate)) return fmi2Error;
     MaglevPlant p;
+    unsigned int code;
     memset(&p, 0, sizeof p);
-    if (maglev_deserialize(&p, (const unsigned char *)serializedState + 1, size - 1, &f->alloc, msg, sizeof msg))
+    if (maglev_deserialize(&p, &code, (const unsigned char *)serializedState, size, &f->alloc, msg, sizeof msg))
         return error(f, "fmi2DeSerializeFMUstate: %s", msg);
+    /* the state machine's state must be one the plant can be in */
+    FmuState st = code >= 1 && code <= 6 ? (FmuState)(1 << code) : StartAndEnd;
+    int needs_init = st & (StepComplete | StepFailed | Terminated);
+    int needs_fresh = st & (Instantiated | InitializationMode);
+    if (st == StartAndEnd || (needs_init && !p.initialized) || (needs_fresh && p.initialized)) {
+        maglev_release(&p, &f->alloc);
+        return error(f, "fmi2DeSerializeFMUstate: FMU state code %u does not fit the plant's state", code);
+    }
     Snapshot *s = *FMUstate;
-    if (!s) {
-        s = f->cb.allocateMemory(1, sizeof *s);
-        if (!s) {
-            maglev_release(&p, &f->alloc);
-            return error(f, "fmi2DeSerializeFMUstate: out of memory");
-        }
-    } else {
+    if (s) {
         maglev_release(&s->plant, &f->alloc);
+    } else if (!(s = snapshot_new(f))) {
+        maglev_release(&p, &f->alloc);
+        return error(f, "fmi2DeSerializeFMUstate: out of memory");
     }
     s->plant = p;
-    s->state = (FmuState)(1 << code);
+    s->state = st;
     *FMUstate = s;
     return fmi2OK;
 }
@@ -488,8 +532,10 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
                      currentCommunicationPoint + communicationStepSize, f->stop_time);
     /* the importer's time is the reference: absorb rounding between its clock and ours */
     f->plant.time = currentCommunicationPoint;
-    if (maglev_step(&f->plant, communicationStepSize, &f->alloc, msg, sizeof msg)) {
-        f->state = Error;
+    int rc = maglev_step(&f->plant, communicationStepSize, &f->alloc, msg, sizeof msg);
+    if (rc == MAGLEV_REFUSED) return error(f, "fmi2DoStep: %s", msg); /* nothing changed: shorter steps will do */
+    if (rc) {
+        f->state = Error; /* the model broke down; the values are those before the step */
         return error(f, "fmi2DoStep: %s", msg);
     }
     return fmi2OK;

@@ -11,44 +11,51 @@
 #define MU_LIMIT 1.0
 #define T_D_MAX 1.0
 #define STEP_MAX 1e-3
+#define STEP_MIN 1e-6 /* [s] finer RK4 steps buy no accuracy at double precision and cost time */
 #define TIME_EPS 1e-12
 #define T_F_MIN 1e-6 /* [s] shorter force lags would need ever smaller RK4 substeps */
 #define TRANSIENT_EPS 1e-6 /* [A] current transient below which RK4 may take full steps */
+#define FF_CURRENT_EPS 1e-12 /* [A] current transient that no longer moves a force lag's input */
+
+/* The ranges are physical plausibility bounds, far wider than any rig, that keep every product
+ * of the equations finite: a value outside them is a unit error or a typing slip. */
+#define ANY -INFINITY, INFINITY
+#define POS_M -1.0, 1.0 /* [m] positions: the rig is a few mm tall */
 
 const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
-    [VR_u] = {"u", MAGLEV_INPUT, 0.0, "MU", "D/A converter input (controller output), limited to +-1 MU"},
-    [VR_y] = {"y", MAGLEV_OUTPUT, 0.0, "MU", "A/D converter output (position measurement), Eq. 13, limited to +-1 MU"},
-    [VR_x] = {"x", MAGLEV_OUTPUT, 0.0, "m", "Ball position, growing towards the coil"},
-    [VR_v] = {"v", MAGLEV_OUTPUT, 0.0, "m/s", "Ball velocity"},
-    [VR_i] = {"i", MAGLEV_OUTPUT, 0.0, "A", "Coil current, Eq. 2 (Eq. 5 when T_a = 0)"},
-    [VR_k_DA] = {"k_DA", MAGLEV_PARAMETER, 5.0, "V/MU", "D/A converter gain, Eq. 1 (Sec. 3.1)"},
-    [VR_u_0] = {"u_0", MAGLEV_PARAMETER, 0.0, "V", "D/A converter offset, Eq. 1 (Sec. 3.1)"},
-    [VR_k_i] = {"k_i", MAGLEV_PARAMETER, 0.3, "A/V", "Power amplifier gain, Eq. 2 (Sec. 3.2)"},
-    [VR_T_a] = {"T_a", MAGLEV_PARAMETER, 0.3e-3, "s", "Power amplifier time constant, Eq. 2 (Sec. 3.2); 0 means i = k_i*u, Eq. 5 (effect amplifier_lag)"},
-    [VR_m_k] = {"m_k", MAGLEV_PARAMETER, 8.4e-3, "kg", "Ball mass, Eq. 8 (Sec. 3.4.1)"},
-    [VR_g] = {"g", MAGLEV_PARAMETER, 9.81, "m/s2", "Gravitational acceleration, Eq. 8"},
-    [VR_k_c] = {"k_c", MAGLEV_PARAMETER, 6.9e-6, "N.m2/A2", "Coil constant, Eq. 8 (Sec. 3.4.2, LQ fit)"},
-    [VR_x_0] = {"x_0", MAGLEV_PARAMETER, 8.3e-3, "m", "Coil offset, Eq. 8 (Sec. 3.4.2, LQ fit)"},
-    [VR_k_FV] = {"k_FV", MAGLEV_PARAMETER, 0.03, "N.s/m", "Viscous damping constant, Eq. 8 (Sec. 3.4.3)"},
-    [VR_k_x] = {"k_x", MAGLEV_PARAMETER, 612.3, "V/m", "Position sensor gain, Eq. 12 (Sec. 3.3)"},
-    [VR_y_0] = {"y_0", MAGLEV_PARAMETER, 0.0125, "V", "Position sensor offset, Eq. 12 (Table 3)"},
-    [VR_k_AD] = {"k_AD", MAGLEV_PARAMETER, 0.2, "MU/V", "A/D converter gain, Eq. 13 (Sec. 3.1)"},
-    [VR_y_MU0] = {"y_MU0", MAGLEV_PARAMETER, 0.0, "MU", "A/D converter offset, Eq. 13 (Sec. 3.1)"},
-    [VR_x_min] = {"x_min", MAGLEV_PARAMETER, 0.0, "m", "Lower mechanical stop"},
-    [VR_x_max] = {"x_max", MAGLEV_PARAMETER, 6.3e-3, "m", "Upper mechanical stop, below x_0"},
-    [VR_i_max] = {"i_max", MAGLEV_PARAMETER, 1.5, "A", "Largest current the amplifier delivers (effect current_saturation when lowered)"},
-    [VR_x_start] = {"x_start", MAGLEV_PARAMETER, 0.0, "m", "Initial ball position"},
-    [VR_v_start] = {"v_start", MAGLEV_PARAMETER, 0.0, "m/s", "Initial ball velocity"},
-    [VR_i_start] = {"i_start", MAGLEV_PARAMETER, 0.0, "A", "Initial coil current (used when T_a > 0)"},
-    [VR_T_F] = {"T_F", MAGLEV_PARAMETER, 0.0, "s", "Time constant of the force lag behind the static force law (effect force_lag; 0 = off)"},
-    [VR_T_d] = {"T_d", MAGLEV_PARAMETER, 0.0, "s", "Transport delay of the D/A signal, at most 1 s (effect delay; 0 = off)"},
-    [VR_k_x2] = {"k_x2", MAGLEV_PARAMETER, 0.0, "V/m2", "Sensor deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12 (effect sensor_nonlinearity; 0 = off)"},
-    [VR_x_cal] = {"x_cal", MAGLEV_PARAMETER, 6.3e-3, "m", "Second calibration point of the sensor (Table 3); the first is x = 0"},
-    [VR_A_d] = {"A_d", MAGLEV_PARAMETER, 0.0, "V", "Amplitude of sinusoidal pickup on the sensor voltage (effect periodic_disturbance; 0 = off)"},
-    [VR_f_d] = {"f_d", MAGLEV_PARAMETER, 50.0, "Hz", "Frequency of the sensor pickup"},
-    [VR_phi_d] = {"phi_d", MAGLEV_PARAMETER, 0.0, "rad", "Phase of the sensor pickup at t = 0"},
-    [VR_solver_step] = {"solver_step", MAGLEV_PARAMETER, 1e-4, "s", "Largest internal RK4 step (0 < solver_step <= 1e-3)"},
-    [VR_F] = {"F", MAGLEV_OUTPUT, 0.0, "N", "Magnetic force on the ball, Eq. 8"},
+    [VR_u] = {"u", MAGLEV_INPUT, 0.0, ANY, "MU", "D/A converter input (controller output), limited to +-1 MU by the converter"},
+    [VR_y] = {"y", MAGLEV_OUTPUT, 0.0, -MU_LIMIT, MU_LIMIT, "MU", "A/D converter output (position measurement), Eq. 13, limited to +-1 MU"},
+    [VR_x] = {"x", MAGLEV_OUTPUT, 0.0, ANY, "m", "Ball position, growing towards the coil"},
+    [VR_v] = {"v", MAGLEV_OUTPUT, 0.0, ANY, "m/s", "Ball velocity"},
+    [VR_i] = {"i", MAGLEV_OUTPUT, 0.0, ANY, "A", "Coil current, Eq. 2 (Eq. 5 when T_a = 0)"},
+    [VR_k_DA] = {"k_DA", MAGLEV_PARAMETER, 5.0, 1e-3, 1e3, "V/MU", "D/A converter gain, Eq. 1 (Sec. 3.1)"},
+    [VR_u_0] = {"u_0", MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "V", "D/A converter offset, Eq. 1 (Sec. 3.1)"},
+    [VR_k_i] = {"k_i", MAGLEV_PARAMETER, 0.3, 1e-6, 1e3, "A/V", "Power amplifier gain, Eq. 2 (Sec. 3.2)"},
+    [VR_T_a] = {"T_a", MAGLEV_PARAMETER, 0.3e-3, 0.0, 1.0, "s", "Power amplifier time constant, Eq. 2 (Sec. 3.2); 0 means i = k_i*u, Eq. 5 (effect amplifier_lag)"},
+    [VR_m_k] = {"m_k", MAGLEV_PARAMETER, 8.4e-3, 1e-6, 100.0, "kg", "Ball mass, Eq. 8 (Sec. 3.4.1)"},
+    [VR_g] = {"g", MAGLEV_PARAMETER, 9.81, 1e-3, 100.0, "m/s2", "Gravitational acceleration, Eq. 8"},
+    [VR_k_c] = {"k_c", MAGLEV_PARAMETER, 6.9e-6, 1e-12, 1.0, "N.m2/A2", "Coil constant, Eq. 8 (Sec. 3.4.2, LQ fit)"},
+    [VR_x_0] = {"x_0", MAGLEV_PARAMETER, 8.3e-3, POS_M, "m", "Coil offset, Eq. 8 (Sec. 3.4.2, LQ fit)"},
+    [VR_k_FV] = {"k_FV", MAGLEV_PARAMETER, 0.03, 0.0, 1e3, "N.s/m", "Viscous damping constant, Eq. 8 (Sec. 3.4.3)"},
+    [VR_k_x] = {"k_x", MAGLEV_PARAMETER, 612.3, 1e-3, 1e6, "V/m", "Position sensor gain, Eq. 12 (Sec. 3.3)"},
+    [VR_y_0] = {"y_0", MAGLEV_PARAMETER, 0.0125, -100.0, 100.0, "V", "Position sensor offset, Eq. 12 (Table 3)"},
+    [VR_k_AD] = {"k_AD", MAGLEV_PARAMETER, 0.2, 1e-3, 1e3, "MU/V", "A/D converter gain, Eq. 13 (Sec. 3.1)"},
+    [VR_y_MU0] = {"y_MU0", MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "MU", "A/D converter offset, Eq. 13 (Sec. 3.1)"},
+    [VR_x_min] = {"x_min", MAGLEV_PARAMETER, 0.0, POS_M, "m", "Lower mechanical stop"},
+    [VR_x_max] = {"x_max", MAGLEV_PARAMETER, 6.3e-3, POS_M, "m", "Upper mechanical stop, below x_0"},
+    [VR_i_max] = {"i_max", MAGLEV_PARAMETER, 1.5, 1e-6, 1e3, "A", "Largest current the amplifier delivers (effect current_saturation when lowered)"},
+    [VR_x_start] = {"x_start", MAGLEV_PARAMETER, 0.0, POS_M, "m", "Initial ball position, between the stops"},
+    [VR_v_start] = {"v_start", MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "m/s", "Initial ball velocity"},
+    [VR_i_start] = {"i_start", MAGLEV_PARAMETER, 0.0, 0.0, 1e3, "A", "Initial coil current (used when T_a > 0), at most i_max"},
+    [VR_T_F] = {"T_F", MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of the force lag behind the static force law (effect force_lag; 0 = off, else >= 1e-6 s)"},
+    [VR_T_d] = {"T_d", MAGLEV_PARAMETER, 0.0, 0.0, T_D_MAX, "s", "Transport delay of the D/A signal (effect delay; 0 = off)"},
+    [VR_k_x2] = {"k_x2", MAGLEV_PARAMETER, 0.0, -1e8, 1e8, "V/m2", "Sensor deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12 (effect sensor_nonlinearity; 0 = off)"},
+    [VR_x_cal] = {"x_cal", MAGLEV_PARAMETER, 6.3e-3, 1e-6, 1.0, "m", "Second calibration point of the sensor (Table 3); the first is x = 0"},
+    [VR_A_d] = {"A_d", MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "V", "Amplitude of sinusoidal pickup on the sensor voltage (effect periodic_disturbance; 0 = off)"},
+    [VR_f_d] = {"f_d", MAGLEV_PARAMETER, 50.0, 0.0, 1e5, "Hz", "Frequency of the sensor pickup"},
+    [VR_phi_d] = {"phi_d", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "rad", "Phase of the sensor pickup at t = 0"},
+    [VR_solver_step] = {"solver_step", MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step"},
+    [VR_F] = {"F", MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8"},
 };
 
 #define P(m, name) ((m)->p[VR_##name - MAGLEV_FIRST_PARAM])
@@ -80,33 +87,14 @@ void maglev_defaults(MaglevPlant *m) {
 }
 
 int maglev_check_value(MaglevVR vr, double value, char *msg, size_t len) {
-    const char *name = (vr >= 0 && vr < MAGLEV_NVARS) ? maglev_variables[vr].name : "?";
-    if (!isfinite(value)) return fail(msg, len, "variable %s: value %g is not finite", name, value);
-    switch (vr) {
-    case VR_m_k: case VR_k_i: case VR_k_c: case VR_g: case VR_i_max: case VR_x_cal:
-        if (value <= 0) return fail(msg, len, "variable %s: must be > 0, got %g", name, value);
-        break;
-    case VR_k_DA: case VR_k_x: case VR_k_AD:
-        if (value == 0) return fail(msg, len, "variable %s: must not be 0", name);
-        break;
-    case VR_k_FV: case VR_T_a: case VR_f_d:
-        if (value < 0) return fail(msg, len, "variable %s: must be >= 0, got %g", name, value);
-        break;
-    case VR_T_F:
-        if (value < 0 || (value > 0 && value < T_F_MIN))
-            return fail(msg, len, "variable T_F: must be 0 (off) or >= %g s, got %g", T_F_MIN, value);
-        break;
-    case VR_T_d:
-        if (value < 0 || value > T_D_MAX)
-            return fail(msg, len, "variable T_d: must be in [0, %g] s, got %g", T_D_MAX, value);
-        break;
-    case VR_solver_step:
-        if (value <= 0 || value > STEP_MAX)
-            return fail(msg, len, "variable solver_step: must be in (0, %g] s, got %g", STEP_MAX, value);
-        break;
-    default:
-        break;
-    }
+    if (vr < 0 || vr >= MAGLEV_NVARS) return fail(msg, len, "unknown value reference %d", (int)vr);
+    const MaglevVariable *var = &maglev_variables[vr];
+    if (!isfinite(value)) return fail(msg, len, "variable %s: value %g is not finite", var->name, value);
+    if (var->causality == MAGLEV_PARAMETER && (value < var->min || value > var->max))
+        return fail(msg, len, "variable %s: must be in [%g, %g] %s, got %g", var->name, var->min, var->max, var->unit,
+                    value);
+    if (vr == VR_T_F && value > 0 && value < T_F_MIN)
+        return fail(msg, len, "variable T_F: must be 0 (off) or >= %g s, got %g", T_F_MIN, value);
     return 0;
 }
 
@@ -123,6 +111,35 @@ int maglev_check_params(const MaglevPlant *m, char *msg, size_t len) {
                     P(m, x_max), P(m, x_start));
     if (P(m, i_start) < 0 || P(m, i_start) > P(m, i_max))
         return fail(msg, len, "variable i_start: must lie in [0, i_max = %g] A, got %g", P(m, i_max), P(m, i_start));
+    return 0;
+}
+
+int maglev_check_plant(const MaglevPlant *m, char *msg, size_t len) {
+    for (int vr = MAGLEV_FIRST_PARAM; vr <= VR_solver_step; vr++)
+        if (maglev_check_value((MaglevVR)vr, maglev_param(m, (MaglevVR)vr), msg, len)) return -1;
+    if (!isfinite(m->time) || fabs(m->time) > MAGLEV_TIME_MAX)
+        return fail(msg, len, "time %g must be finite and within +-%g s", m->time, MAGLEV_TIME_MAX);
+    if (!isfinite(m->u)) return fail(msg, len, "variable u: value %g is not finite", m->u);
+    const MaglevHistory *h = &m->hist;
+    for (size_t k = 0; k < h->len; k++) {
+        if (!isfinite(h->u[k])) return fail(msg, len, "delay history: input %g is not finite", h->u[k]);
+        if (isnan(h->t[k]) || h->t[k] == INFINITY || (k > 0 && !(h->t[k] > h->t[k - 1])))
+            return fail(msg, len, "delay history: times are not finite and increasing at entry %zu", k);
+    }
+    if (!m->initialized) return 0; /* before initialisation only the values on their own count */
+    if (maglev_check_params(m, msg, len)) return -1;
+    if (!(m->x >= P(m, x_min) && m->x <= P(m, x_max)))
+        return fail(msg, len, "variable x: %g m lies outside the stops [%g, %g] m", m->x, P(m, x_min), P(m, x_max));
+    if (!isfinite(m->v)) return fail(msg, len, "variable v: value %g is not finite", m->v);
+    if (!(m->i >= 0 && m->i <= P(m, i_max)))
+        return fail(msg, len, "variable i: %g A lies outside [0, i_max = %g] A", m->i, P(m, i_max));
+    if (P(m, T_F) > 0 ? !(m->F >= 0 && isfinite(m->F)) : m->F != 0)
+        return fail(msg, len, "variable F: %g N is not a force the lag can hold", m->F);
+    if (m->contact < CONTACT_LOWER || m->contact > CONTACT_UPPER)
+        return fail(msg, len, "contact mode %d is invalid", m->contact);
+    if (m->contact && (m->v != 0 || m->x != (m->contact == CONTACT_UPPER ? P(m, x_max) : P(m, x_min))))
+        return fail(msg, len, "contact with a stop, but x = %g m and v = %g m/s", m->x, m->v);
+    if (P(m, T_d) > 0 && h->len == 0) return fail(msg, len, "delay T_d > 0 but no input history");
     return 0;
 }
 
@@ -164,10 +181,11 @@ typedef struct {
     const MaglevPlant *m;
     double i0, ic;          /* current at the piece's start and its command */
     double kc_m, kfv_m, x0; /* k_c/m_k, k_FV/m_k, x_0: the hot loop's constants */
+    long *work;             /* RK4 evaluations spent in this maglev_step, against the budget */
 } Piece;
 
-static Piece make_piece(const MaglevPlant *m, double i0, double ic) {
-    Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0)};
+static Piece make_piece(const MaglevPlant *m, double i0, double ic, long *work) {
+    Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), work};
     return pc;
 }
 
@@ -195,6 +213,7 @@ static Mech axpy(Mech s, double a, Mech d) {
 
 /* One RK4 step with the currents at its start, middle and end given. */
 static Mech rk4_i(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
+    ++*pc->work;
     Mech k1 = deriv(pc, ia, s, contact);
     Mech k2 = deriv(pc, im, axpy(s, h / 2, k1), contact);
     Mech k3 = deriv(pc, im, axpy(s, h / 2, k2), contact);
@@ -296,12 +315,27 @@ static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h
     }
 }
 
+/* Whether a ball on a stop stays there, unmoving, for the rest of a piece whose current is now
+ * i_now: the current runs monotonically from i_now to its command, so the static force does
+ * too, and a force lag's output stays between its value now and the static force. Then x and v
+ * are exactly constant and the remaining piece needs no integration. With a force lag the
+ * current transient must be over, so that the lag's input is constant. */
+static int stays_on_stop(const Piece *pc, Mech s, int contact, double i_now) {
+    const MaglevPlant *m = pc->m;
+    if (!contact || s.v != 0.0) return 0;
+    if (P(m, T_F) > 0 && fabs(i_now - pc->ic) > FF_CURRENT_EPS) return 0;
+    double w = P(m, m_k) * P(m, g), sign = contact == CONTACT_UPPER ? 1.0 : -1.0;
+    if (sign * (static_force(m, pc->ic, s.x) - w) < 0) return 0;
+    if (P(m, T_F) > 0) return sign * (s.F - w) >= 0;
+    return sign * (static_force(m, i_now, s.x) - w) >= 0;
+}
+
 /* Integrates [t0, t0 + len) with a constant delayed input. RK4 sees the current's exponential
  * transient as a fast forcing term: while it exceeds 1 uA the substeps are T_a/8 at most (the
  * 1 kHz closed loop then agrees with the solve_ivp reference to 1e-8 MU); afterwards they grow
- * to solver_step. */
-static void integrate_piece(MaglevPlant *m, double len, double u_eff) {
-    Piece pc = make_piece(m, m->i, current_command(m, u_eff));
+ * to solver_step. Returns -1 when the work budget runs out. */
+static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work) {
+    Piece pc = make_piece(m, m->i, current_command(m, u_eff), work);
     Mech s = {m->x, m->v, m->F};
     double hmax = P(m, solver_step);
     if (P(m, T_F) > 0 && P(m, T_F) / 2 < hmax) hmax = P(m, T_F) / 2;
@@ -312,31 +346,47 @@ static void integrate_piece(MaglevPlant *m, double len, double u_eff) {
         if (t_fine > len) t_fine = len;
     }
     double bounds[2] = {t_fine, len}, hs[2] = {hfine, hmax}, tau = 0.0;
-    for (int part = 0; part < 2; part++) {
+    double d = pc.i0 - pc.ic;
+    int resting = 0;
+    for (int part = 0; part < 2 && !resting; part++) {
         double span = bounds[part] - tau;
         if (span <= 0) continue;
-        long n = (long)ceil(span / hs[part] - 1e-9);
-        if (n < 1) n = 1;
-        double h = span / (double)n;
+        /* A span beyond the budget is integrated at the nominal substep while the budget lasts:
+         * it still passes if the ball comes to rest on a stop on the way. */
+        double nd = ceil(span / hs[part] - 1e-9), left = (double)(MAGLEV_STEP_BUDGET - *work);
+        int over = !(nd <= left); /* compared as doubles: no cast of a huge count */
+        long n = over ? (long)left : (nd < 1 ? 1 : (long)nd);
+        double h = over ? hs[part] : span / (double)n;
         /* the current's exponential by recurrence: e^(-(k+1)h/T) = e^(-kh/T) * q */
-        double d = pc.i0 - pc.ic, E = 1.0, q = 0.0, qh = 0.0;
+        double E = 1.0, q = 0.0, qh = 0.0;
         if (P(m, T_a) > 0) {
             E = exp(-tau / P(m, T_a));
             q = exp(-h / P(m, T_a));
             qh = exp(-h / (2 * P(m, T_a)));
         }
-        for (long k = 0; k < n; k++) {
+        for (long k = 0; over || k < n; k++) {
             double cur[3] = {pc.ic + d * E, pc.ic + d * E * qh, pc.ic + d * E * q};
             if (P(m, T_a) <= 0) cur[0] = cur[1] = cur[2] = pc.ic;
+            if (m->contact && stays_on_stop(&pc, s, m->contact, cur[0])) {
+                tau += k * h;
+                resting = 1;
+                break;
+            }
+            if (k >= n || *work >= MAGLEV_STEP_BUDGET) return -1;
             substep(&pc, tau + k * h, &s, &m->contact, h, cur);
             E *= q;
         }
-        tau = bounds[part];
+        if (!resting) tau = bounds[part];
+    }
+    if (resting && P(m, T_F) > 0) { /* the lag relaxes towards a constant static force */
+        double Fs = static_force(m, pc.ic, s.x);
+        s.F = Fs + (s.F - Fs) * exp(-(len - tau) / P(m, T_F));
     }
     m->x = s.x;
     m->v = s.v;
     m->F = P(m, T_F) > 0 ? s.F : 0.0;
-    m->i = current_at(m, pc.i0, pc.ic, len);
+    m->i = clip(current_at(m, pc.i0, pc.ic, len), 0.0, P(m, i_max)); /* against rounding past the ends */
+    return 0;
 }
 
 /* ---- history of the input, for the delay ---- */
@@ -387,20 +437,22 @@ int maglev_set_input(MaglevPlant *m, double u, const MaglevAllocator *a, char *m
     return 0;
 }
 
-int maglev_initialize(MaglevPlant *m, double t0, double u0, const MaglevAllocator *a, char *msg, size_t len) {
+/* The state at t0 from the start values, without the delay history (shared by initialisation
+ * and its preview). */
+static int start_state(MaglevPlant *m, double t0, double u0, char *msg, size_t len) {
     if (maglev_check_params(m, msg, len)) return -1;
-    if (!isfinite(t0)) return fail(msg, len, "start time %g is not finite", t0);
+    if (!isfinite(t0) || fabs(t0) > MAGLEV_TIME_MAX)
+        return fail(msg, len, "start time %g must be finite and within +-%g s", t0, MAGLEV_TIME_MAX);
+    if (!isfinite(u0)) return fail(msg, len, "variable u: value %g is not finite", u0);
     m->time = t0;
+    m->u = u0;
     m->x = P(m, x_start);
     m->v = P(m, v_start);
-    m->hist.len = 0;
-    if (maglev_set_input(m, u0, a, msg, len)) return -1;
-    /* the delay's "before the start" value is the initial input */
-    if (P(m, T_d) > 0 && m->hist.len) m->hist.t[0] = -INFINITY;
     m->i = P(m, T_a) > 0 ? P(m, i_start) : current_command(m, u0);
     m->F = P(m, T_F) > 0 ? static_force(m, m->i, m->x) : 0.0;
     m->contact = CONTACT_NONE;
-    Piece pc = make_piece(m, m->i, m->i);
+    long work = 0;
+    Piece pc = make_piece(m, m->i, m->i, &work);
     Mech s = {m->x, m->v, m->F};
     if (m->x >= P(m, x_max) && (m->v > 0 || (m->v == 0 && press(&pc, 0, s, CONTACT_UPPER) >= 0))) {
         m->contact = CONTACT_UPPER;
@@ -412,10 +464,33 @@ int maglev_initialize(MaglevPlant *m, double t0, double u0, const MaglevAllocato
     return 0;
 }
 
+int maglev_preview(const MaglevPlant *m, double t0, MaglevPlant *view, char *msg, size_t len) {
+    *view = *m;
+    memset(&view->hist, 0, sizeof view->hist);
+    return start_state(view, t0, m->u, msg, len);
+}
+
+int maglev_initialize(MaglevPlant *m, double t0, double u0, const MaglevAllocator *a, char *msg, size_t len) {
+    if (start_state(m, t0, u0, msg, len)) return -1;
+    m->hist.len = 0;
+    if (maglev_set_input(m, u0, a, msg, len)) return -1;
+    /* the delay's "before the start" value is the initial input */
+    if (P(m, T_d) > 0 && m->hist.len) m->hist.t[0] = -INFINITY;
+    m->initialized = 1;
+    return 0;
+}
+
 int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, size_t len) {
     (void)a;
     if (!(h > 0) || !isfinite(h)) return fail(msg, len, "communication step size %g must be > 0 and finite", h);
     double t_end = m->time + h;
+    if (!(fabs(t_end) <= MAGLEV_TIME_MAX)) {
+        fail(msg, len, "a step to t = %g s leaves the time range +-%g s", t_end, MAGLEV_TIME_MAX);
+        return MAGLEV_REFUSED;
+    }
+    /* a failed step leaves the plant as it was (the history is not touched by stepping) */
+    MaglevPlant before = *m;
+    long work = 0;
     if (P(m, T_a) <= 0) m->i = current_command(m, delayed_input(m, m->time));
     while (m->time < t_end) {
         double next = t_end;
@@ -429,13 +504,23 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
                 }
             }
         }
-        integrate_piece(m, next - m->time, delayed_input(m, 0.5 * (m->time + next)));
+        if (integrate_piece(m, next - m->time, delayed_input(m, 0.5 * (m->time + next)), &work)) {
+            *m = before;
+            fail(msg, len, "a step of %g s needs more than %ld RK4 steps (solver_step = %g s%s); "
+                        "take shorter communication steps", h, MAGLEV_STEP_BUDGET, P(m, solver_step),
+                        P(m, T_F) > 0 ? ", force lag T_F" : "");
+            return MAGLEV_REFUSED;
+        }
         m->time = next;
     }
     m->time = t_end;
     if (P(m, T_a) <= 0) m->i = current_command(m, delayed_input(m, m->time));
-    if (!isfinite(m->x) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F))
-        return fail(msg, len, "state became non-finite at t = %g (x = %g, v = %g, i = %g)", m->time, m->x, m->v, m->i);
+    if (!isfinite(m->x) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F)) {
+        double x = m->x, v = m->v, i = m->i;
+        *m = before;
+        return fail(msg, len, "state became non-finite at t = %g (x = %g, v = %g, i = %g); the state before "
+                    "the step is kept", t_end, x, v, i);
+    }
     return 0;
 }
 
@@ -489,13 +574,13 @@ int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator 
     return 0;
 }
 
-/* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, doubles
+/* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, u32 tag, i32 initialized, doubles
  * (params, time, u, x, v, i, F), i32 contact, hist pairs, u64 FNV-1a of all before. */
 #define SER_MAGIC "MGLV"
-#define SER_VERSION 1u
+#define SER_VERSION 2u
 #define SER_NSTATE 6
 
-static size_t ser_header(void) { return 4 + 4 + 4 + 8; }
+static size_t ser_header(void) { return 4 + 4 + 4 + 8 + 4 + 4; }
 
 size_t maglev_serialized_size(const MaglevPlant *m) {
     return ser_header() + (MAGLEV_NPARAMS + SER_NSTATE) * 8 + 4 + m->hist.len * 16 + 8;
@@ -520,16 +605,18 @@ static const unsigned char *get(const unsigned char *b, void *v, size_t n) {
     return b + n;
 }
 
-void maglev_serialize(const MaglevPlant *m, unsigned char *buf) {
+void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf) {
     unsigned char *b = buf;
     unsigned int version = SER_VERSION, np = MAGLEV_NPARAMS;
     unsigned long long hl = m->hist.len;
-    int contact = m->contact;
+    int contact = m->contact, initialized = m->initialized;
     double st[SER_NSTATE] = {m->time, m->u, m->x, m->v, m->i, m->F};
     b = put(b, SER_MAGIC, 4);
     b = put(b, &version, 4);
     b = put(b, &np, 4);
     b = put(b, &hl, 8);
+    b = put(b, &tag, 4);
+    b = put(b, &initialized, 4);
     b = put(b, m->p, sizeof m->p);
     b = put(b, st, sizeof st);
     b = put(b, &contact, 4);
@@ -541,17 +628,20 @@ void maglev_serialize(const MaglevPlant *m, unsigned char *buf) {
     put(b, &sum, 8);
 }
 
-int maglev_deserialize(MaglevPlant *m, const unsigned char *buf, size_t size, const MaglevAllocator *a,
-                       char *msg, size_t len) {
+int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *buf, size_t size,
+                       const MaglevAllocator *a, char *msg, size_t len) {
     if (!buf) return fail(msg, len, "serialized state is NULL");
     if (size < ser_header() + 8) return fail(msg, len, "serialized state too short (%zu bytes)", size);
-    unsigned int version, np;
+    unsigned int version, np, tg;
     unsigned long long hl, sum;
+    int initialized;
     const unsigned char *b = buf;
     if (memcmp(b, SER_MAGIC, 4) != 0) return fail(msg, len, "serialized state has a wrong magic number");
     b = get(b + 4, &version, 4);
     b = get(b, &np, 4);
     b = get(b, &hl, 8);
+    b = get(b, &tg, 4);
+    b = get(b, &initialized, 4);
     if (version != SER_VERSION) return fail(msg, len, "serialized state has version %u, expected %u", version, SER_VERSION);
     if (np != MAGLEV_NPARAMS) return fail(msg, len, "serialized state has %u parameters, expected %d", np, MAGLEV_NPARAMS);
     if (hl > (size - ser_header()) / 16) return fail(msg, len, "serialized state truncated (history of %llu entries)", hl);
@@ -562,17 +652,13 @@ int maglev_deserialize(MaglevPlant *m, const unsigned char *buf, size_t size, co
     if (size != need) return fail(msg, len, "serialized state has %zu bytes, expected %zu (truncated or padded)", size, need);
     get(buf + size - 8, &sum, 8);
     if (sum != fnv1a(buf, size - 8)) return fail(msg, len, "serialized state is corrupted (checksum mismatch)");
+    if (initialized != 0 && initialized != 1) return fail(msg, len, "serialized state has an invalid initialized flag");
     double st[SER_NSTATE];
-    int contact;
     b = get(b, tmp.p, sizeof tmp.p);
     b = get(b, st, sizeof st);
-    b = get(b, &contact, 4);
+    b = get(b, &tmp.contact, 4);
     tmp.time = st[0]; tmp.u = st[1]; tmp.x = st[2]; tmp.v = st[3]; tmp.i = st[4]; tmp.F = st[5];
-    tmp.contact = contact;
-    if (maglev_check_params(&tmp, msg, len)) return -1;
-    for (int k = 0; k < SER_NSTATE; k++)
-        if (!isfinite(st[k])) return fail(msg, len, "serialized state holds a non-finite value");
-    if (contact < -1 || contact > 1) return fail(msg, len, "serialized state holds an invalid contact mode %d", contact);
+    tmp.initialized = initialized;
     tmp.hist.len = 0;
     if (hl) {
         tmp.hist.t = a->alloc((size_t)hl, sizeof(double), a->env);
@@ -587,7 +673,13 @@ int maglev_deserialize(MaglevPlant *m, const unsigned char *buf, size_t size, co
         }
         tmp.hist.len = tmp.hist.cap = (size_t)hl;
     }
+    char why[MAGLEV_MSG_LEN];
+    if (maglev_check_plant(&tmp, why, sizeof why)) {
+        maglev_release(&tmp, a);
+        return fail(msg, len, "serialized state holds values the plant cannot have: %s", why);
+    }
     maglev_release(m, a);
     *m = tmp;
+    *tag = tg;
     return 0;
 }

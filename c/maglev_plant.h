@@ -49,10 +49,13 @@ typedef enum {
 
 typedef enum { MAGLEV_INPUT, MAGLEV_OUTPUT, MAGLEV_PARAMETER } MaglevCausality;
 
+/* min/max: the inclusive range maglev_check_value enforces (-inf/inf where the value is
+ * only required to be finite, and for outputs the range the plant keeps them in). */
 typedef struct {
     const char *name;
     MaglevCausality causality;
     double start;
+    double min, max;
     const char *unit;
     const char *description;
 } MaglevVariable;
@@ -70,8 +73,17 @@ typedef struct {
     size_t cap;
 } MaglevHistory;
 
+/* |time| never exceeds this: the clock then still resolves the smallest solver step to
+ * about a tenth, and every phase 2*pi*f_d*t stays finite. */
+#define MAGLEV_TIME_MAX 1e9
+
+/* Most RK4 evaluations one maglev_step may spend (0.03 s of CPU at -O2); a step that would need
+ * more is refused with the plant unchanged, so no call can hang its caller. */
+#define MAGLEV_STEP_BUDGET 500000L
+
 typedef struct {
     double p[MAGLEV_NPARAMS];   /* indexed by VR - MAGLEV_FIRST_PARAM */
+    int initialized;            /* set by maglev_initialize; parameters are fixed from then on */
     double time;                /* [s] */
     double u;                   /* [MU] input held since the last communication point */
     double x, v, i, F;          /* [m] [m/s] [A] [N] */
@@ -102,15 +114,27 @@ int maglev_check_value(MaglevVR vr, double value, char *msg, size_t msglen);
 /* Checks the whole parameter set (the relations between parameters). */
 int maglev_check_params(const MaglevPlant *m, char *msg, size_t msglen);
 
+/* Checks a whole plant as a restore would meet it: every parameter on its own, and once
+ * initialised the relations and a state the plant can have reached (ball between the stops,
+ * current within [0, i_max], a sorted delay history...). */
+int maglev_check_plant(const MaglevPlant *m, char *msg, size_t msglen);
+
 /* Sets the state from x_start, v_start, i_start at time t0 with input u0.
  * Returns 0 or -1 with a message. */
 int maglev_initialize(MaglevPlant *m, double t0, double u0, const MaglevAllocator *a,
                       char *msg, size_t msglen);
 
+/* The plant as maglev_initialize would set it up at t0, written into view without touching m or
+ * allocating (the delay history is left empty): what the outputs are in initialisation mode. */
+int maglev_preview(const MaglevPlant *m, double t0, MaglevPlant *view, char *msg, size_t msglen);
+
 /* Sets the input held from now on (records it in the delay history). */
 int maglev_set_input(MaglevPlant *m, double u, const MaglevAllocator *a, char *msg, size_t msglen);
 
-/* Advances by h > 0 seconds. Returns 0 or -1 with a message. */
+/* Advances by h > 0 seconds. Returns 0; or, with a message and the plant as it was,
+ * MAGLEV_REFUSED for a step too long for the work budget or the time range (shorter steps
+ * will do), -1 for a state that became non-finite. */
+#define MAGLEV_REFUSED (-2)
 int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, size_t msglen);
 
 /* The value of any variable now (outputs are computed from the state). */
@@ -120,10 +144,12 @@ double maglev_get(const MaglevPlant *m, MaglevVR vr);
 int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a);
 void maglev_release(MaglevPlant *m, const MaglevAllocator *a);
 
-/* Serialisation: a versioned, checksummed byte image of the whole plant. */
+/* Serialisation: a versioned, checksummed byte image of the whole plant, with a caller's tag
+ * (the FMU stores its state-machine state there) under the same checksum. Deserialisation
+ * checks the values with maglev_check_plant: a checksum only catches accidents. */
 size_t maglev_serialized_size(const MaglevPlant *m);
-void maglev_serialize(const MaglevPlant *m, unsigned char *buf);
-int maglev_deserialize(MaglevPlant *m, const unsigned char *buf, size_t size,
+void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf);
+int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *buf, size_t size,
                        const MaglevAllocator *a, char *msg, size_t msglen);
 
 /* malloc/free allocator for users outside an FMU (tests, the fast path). */

@@ -18,12 +18,23 @@ double maglev_replay_param_default(int k) {
     return maglev_variables[MAGLEV_FIRST_PARAM + k].start;
 }
 
-static int setup(MaglevPlant *m, const double *params, double u0, char *msg, size_t len) {
+static int load(MaglevPlant *m, const double *params, char *msg, size_t len) {
     maglev_defaults(m);
     for (int k = 0; k < MAGLEV_NPARAMS; k++) {
         if (maglev_check_value((MaglevVR)(MAGLEV_FIRST_PARAM + k), params[k], msg, len)) return -1;
         maglev_set_param(m, (MaglevVR)(MAGLEV_FIRST_PARAM + k), params[k]);
     }
+    return 0;
+}
+
+int maglev_replay_check_params(const double *params, char *msg, size_t len) {
+    MaglevPlant m;
+    if (load(&m, params, msg, len)) return -1;
+    return maglev_check_params(&m, msg, len);
+}
+
+static int setup(MaglevPlant *m, const double *params, double u0, char *msg, size_t len) {
+    if (load(m, params, msg, len)) return -1;
     if (!isfinite(u0)) {
         snprintf(msg, len, "initial input u_hold %g is not finite", u0);
         return -1;

@@ -24,6 +24,10 @@ int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const 
 int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, double ts, double *y,
                             double *x, double *v, double *i, char *msg, size_t msglen);
 
+/* Checks params as the FMU would: every value in its range, then the relations between them.
+ * Returns 0, or -1 with a message naming the variable. */
+int maglev_replay_check_params(const double *params, char *msg, size_t msglen);
+
 /* Number of parameters and their names, in the order params uses. */
 int maglev_replay_nparams(void);
 const char *maglev_replay_param_name(int k);

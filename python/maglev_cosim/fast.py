@@ -112,7 +112,18 @@ def _param_vector(params: Mapping[str, float] | None) -> np.ndarray:
         if unknown:
             raise ValueError(f"unknown parameter(s): {', '.join(unknown)}")
         defaults.update({k: float(v) for k, v in params.items()})
-    return np.array([defaults[n] for n in _names_cache], dtype=float)
+    vec = np.array([defaults[n] for n in _names_cache], dtype=float)
+    m = _lib()
+    msg = m.ffi.new("char[256]")
+    if m.lib.maglev_replay_check_params(m.ffi.cast("double *", m.ffi.from_buffer(vec)), msg, 256) != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return vec
+
+
+def check_params(params: Mapping[str, float] | None) -> None:
+    """Raises ``ValueError`` (one line naming the variable) unless ``params``, applied over the C
+    defaults, is a parameter set the FMU accepts: each value in its range and the relations."""
+    _param_vector(params)
 
 
 def equilibrium_input(p: Mapping[str, float]) -> float:

@@ -17,6 +17,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from fmpy import calloc, extract, free, read_model_description
+from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 
@@ -95,6 +96,13 @@ class FmuPlant:
         Simulation start time [s].
     logger:
         Called with each message the FMU logs, as ``logger(status: int, message: str)``.
+
+    Raises
+    ------
+    FmuError
+        When an FMI call fails: a bad or non-physical value, a step the FMU refuses. The message is
+        the one line the FMU logged, naming the variable (for example ``fmi2SetReal: variable k_c:
+        must be in [1e-12, 1] N.m2/A2, got -1``).
     """
 
     def __init__(self, start_values: Mapping[str, float] | None = None, *, fmu: str | Path | None = None,
@@ -107,16 +115,20 @@ class FmuPlant:
         self._fmu = FMU2Slave(guid=self.model_description.guid, unzipDirectory=unzipdir,
                               modelIdentifier=self.model_description.coSimulation.modelIdentifier,
                               instanceName=instance_name)
-        callbacks = None
-        if logger is not None:
-            def _log(env, name, status, category, message):
-                logger(int(status), message.decode(errors="replace"))
+        self._last_error = ""
 
-            callbacks = fmi2CallbackFunctions()
-            callbacks.logger = fmi2CallbackLoggerTYPE(_log)
-            callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-            callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-            self._callbacks = callbacks  # keeps the ctypes callbacks alive
+        def _log(env, name, status, category, message):
+            text = message.decode(errors="replace")
+            if status >= 2:  # discard, error, fatal: the reason a call is about to fail
+                self._last_error = text
+            if logger is not None:
+                logger(int(status), text)
+
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(_log)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._callbacks = callbacks  # keeps the ctypes callbacks alive
         self._fmu.instantiate(callbacks=callbacks)
         try:
             if start_values:
@@ -124,9 +136,10 @@ class FmuPlant:
             self._fmu.setupExperiment(startTime=start_time)
             self._fmu.enterInitializationMode()
             self._fmu.exitInitializationMode()
-        except Exception as exc:
+        except (FMICallException, FmuError) as exc:
             self._fmu.freeInstance()
-            raise FmuError(f"FMU initialisation failed: {exc}") from exc
+            self._fmu = None
+            raise FmuError(f"FMU initialisation failed: {self._failure(exc)}") from None
         self.time = float(start_time)
         self._c = self._fmu.component
         self._set = self._fmu.fmi2SetReal
@@ -137,31 +150,51 @@ class FmuPlant:
         self._out_vr = (ctypes.c_uint * len(OUTPUTS))(*[self.vr[n] for n in OUTPUTS])
         self._out_val = (ctypes.c_double * len(OUTPUTS))()
 
+    def _failure(self, exc: Exception) -> str:
+        """The FMU's own message for a failed call (one line), else the exception's."""
+        msg, self._last_error = self._last_error, ""
+        return " ".join((msg or str(exc)).split())
+
     def set(self, values: Mapping[str, float]) -> None:
         """Sets variables by name (before or after initialisation, as FMI allows)."""
         unknown = [n for n in values if n not in self.vr]
         if unknown:
             raise FmuError(f"unknown FMU variable(s): {', '.join(unknown)}")
-        self._fmu.setReal([self.vr[n] for n in values], [float(v) for v in values.values()])
+        try:
+            self._fmu.setReal([self.vr[n] for n in values], [float(v) for v in values.values()])
+        except FMICallException as exc:
+            raise FmuError(self._failure(exc)) from None
 
     def get(self, names: Sequence[str]) -> list[float]:
         """Values of variables by name."""
-        return list(self._fmu.getReal([self.vr[n] for n in names]))
+        try:
+            return list(self._fmu.getReal([self.vr[n] for n in names]))
+        except FMICallException as exc:
+            raise FmuError(self._failure(exc)) from None
 
     def set_input(self, u: float) -> None:
         """Sets the D/A input ``u`` [MU], held until the next call."""
         self._u_val[0] = u
-        self._set(self._c, self._u_vr, 1, self._u_val)
+        try:
+            self._set(self._c, self._u_vr, 1, self._u_val)
+        except FMICallException as exc:
+            raise FmuError(self._failure(exc)) from None
 
     def outputs(self) -> tuple[float, float, float, float]:
         """``(y [MU], x [m], v [m/s], i [A])`` now."""
-        self._get(self._c, self._out_vr, len(OUTPUTS), self._out_val)
+        try:
+            self._get(self._c, self._out_vr, len(OUTPUTS), self._out_val)
+        except FMICallException as exc:
+            raise FmuError(self._failure(exc)) from None
         o = self._out_val
         return o[0], o[1], o[2], o[3]
 
     def step(self, h: float) -> None:
-        """Advances the FMU by ``h`` [s] from its current time."""
-        self._step(self._c, self.time, h, 1)
+        """Advances the FMU by ``h`` [s] from its current time (unchanged if the FMU refuses)."""
+        try:
+            self._step(self._c, self.time, h, 1)
+        except FMICallException as exc:
+            raise FmuError(self._failure(exc)) from None
         self.time += h
 
     def get_state(self):

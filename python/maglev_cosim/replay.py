@@ -51,7 +51,9 @@ def settled_start(p: Mapping[str, float], y0: float) -> tuple[dict[str, float], 
 def replay(rec: Record, params: Mapping[str, float], *, w: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The record's closed loop simulated with ``params`` (complete FMU parameter values).
 
-    Returns arrays t [s], w, u, y [MU], x [m], v [m/s], i [A]."""
+    Returns arrays t [s], w, u, y [MU], x [m], v [m/s], i [A]. Raises ``ValueError`` (one line
+    naming the variable) for a parameter set the FMU would refuse."""
+    fast.check_params(params)
     p = dict(params)
     start, u_hold = settled_start(p, float(rec.y[0]))
     p.update(start)

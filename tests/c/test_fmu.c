@@ -239,10 +239,14 @@ static void test_fmu_state(void) {
     fmi2GetReal(c, VR_OUT, 4, y2);
     for (int k = 0; k < 4; k++) CHECK(y1[k] == y2[k], "serialized round trip not exact in output %d", k);
 
-    /* a state restored into another instance continues identically */
+    /* a state moves to another instance through its serialization and continues identically;
+     * the pointer itself belongs to the instance that made it */
     double u2;
     fmi2Component other = make_levitating("other", &u2);
-    CHECK(fmi2SetFMUstate(other, s2) == fmi2OK, "state into another instance");
+    CHECK(fmi2SetFMUstate(other, s2) == fmi2Error && logged("not made by this instance"), "foreign state: %s", last_log);
+    fmi2FMUstate moved = NULL;
+    CHECK(fmi2DeSerializeFMUstate(other, buf, size, &moved) == fmi2OK, "deserialize into another instance");
+    CHECK(fmi2SetFMUstate(other, moved) == fmi2OK, "state into another instance");
     t = t_saved;
     run(other, &t, 100, u_eq);
     fmi2GetReal(other, VR_OUT, 4, y2);
@@ -252,11 +256,14 @@ static void test_fmu_state(void) {
     fmi2FMUstate s3 = NULL;
     CHECK(fmi2DeSerializeFMUstate(c, buf, size - 9, &s3) == fmi2Error && s3 == NULL, "truncated accepted");
     CHECK(logged("truncated") || logged("bytes"), "truncation message: %s", last_log);
-    for (size_t pos = 0; pos < size; pos += 7) {
-        fmi2Byte saved = buf[pos];
-        buf[pos] = (fmi2Byte)(buf[pos] ^ 0x5a);
-        CHECK(fmi2DeSerializeFMUstate(c, buf, size, &s3) == fmi2Error && s3 == NULL, "corruption at byte %zu accepted", pos);
-        buf[pos] = saved;
+    /* every single-bit flip is refused, the FMU state's code included (issue 10, defect 9) */
+    for (size_t pos = 0; pos < size; pos++) {
+        for (int bit = 0; bit < 8; bit++) {
+            buf[pos] = (fmi2Byte)(buf[pos] ^ (1 << bit));
+            CHECK(fmi2DeSerializeFMUstate(c, buf, size, &s3) == fmi2Error && s3 == NULL,
+                  "bit %d of byte %zu flipped accepted", bit, pos);
+            buf[pos] = (fmi2Byte)(buf[pos] ^ (1 << bit));
+        }
     }
     CHECK(fmi2DeSerializeFMUstate(c, buf, 0, &s3) == fmi2Error, "empty accepted");
     free(buf);
@@ -321,6 +328,286 @@ static void test_stops(void) {
     fmi2FreeInstance(c);
 }
 
+
+/* ---- regressions of the stateful fuzz campaign (issue 10): each failed before its fix ---- */
+
+static fmi2Status set1(fmi2Component c, MaglevVR vr, double value) {
+    fmi2ValueReference r = vr;
+    return fmi2SetReal(c, &r, 1, &value);
+}
+
+static double get1(fmi2Component c, MaglevVR vr, fmi2Status *st) {
+    fmi2ValueReference r = vr;
+    double v = NAN;
+    fmi2Status s = fmi2GetReal(c, &r, 1, &v);
+    if (st) *st = s;
+    return v;
+}
+
+static fmi2Component make_initialized(const char *name, MaglevVR vr, double value) {
+    fmi2Component c = make(name);
+    if (vr != VR_u || value != 0) set1(c, vr, value);
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(c);
+    fmi2ExitInitializationMode(c);
+    return c;
+}
+
+/* 1, 3: a tiny solver step is refused; a step needing more work than the budget is refused with
+ * the state unchanged, and the instance goes on; a huge step leaves the time range (no UB). */
+static void test_step_work_bounded(void) {
+    fmi2Component c = make("tiny");
+    last_log[0] = 0;
+    CHECK(set1(c, VR_solver_step, 1e-11) == fmi2Error && logged("variable solver_step"), "1e-11 s: %s", last_log);
+    CHECK(set1(c, VR_solver_step, 1e-6) == fmi2OK, "1e-6 s refused: %s", last_log);
+    fmi2FreeInstance(c);
+
+    double u_eq, t = 0;
+    c = make_levitating("budget", &u_eq);
+    CHECK(fmi2DoStep(c, 0, 1e-3, fmi2True) == fmi2OK, "ordinary step");
+    t = 1e-3;
+    double before[4], after[4];
+    fmi2GetReal(c, VR_OUT, 4, before);
+    fmi2FreeInstance(c);
+    /* levitating at solver_step = 1e-6 the ball stays off the stops for about a second: 1e6 substeps */
+    c = make("budget2");
+    {
+        double x = 0.0032, i = (8.3e-3 - x) * sqrt(8.4e-3 * 9.81 / 6.9e-6);
+        fmi2ValueReference vr[] = {VR_x_start, VR_i_start, VR_u, VR_solver_step};
+        double val[] = {x, i, i / 1.5, 1e-6};
+        fmi2SetReal(c, vr, 4, val);
+        fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+        fmi2EnterInitializationMode(c);
+        fmi2ExitInitializationMode(c);
+    }
+    fmi2GetReal(c, VR_OUT, 4, before);
+    last_log[0] = 0;
+    CHECK(fmi2DoStep(c, 0, 10.0, fmi2True) == fmi2Error && logged("RK4 steps") && logged("shorter"),
+          "10 s at 1e-6 s substeps: %s", last_log);
+    fmi2GetReal(c, VR_OUT, 4, after);
+    for (int k = 0; k < 4; k++) CHECK(before[k] == after[k], "refused step changed output %d", k);
+    double lt = -1;
+    fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &lt);
+    CHECK(lt == 0.0, "refused step moved the time to %g", lt);
+    CHECK(fmi2DoStep(c, 0, 1e-3, fmi2True) == fmi2OK, "instance unusable after a refused step: %s", last_log);
+    last_log[0] = 0;
+    CHECK(fmi2DoStep(c, 1e-3, 1e20, fmi2True) == fmi2Error && logged("time range"), "1e20 s step: %s", last_log);
+    CHECK(fmi2DoStep(c, 1e-3, 1e-3, fmi2True) == fmi2OK, "instance unusable after a huge step: %s", last_log);
+    fmi2FreeInstance(c);
+    (void)t;
+}
+
+/* 2: long steps. A ball at rest on a stop is fast-forwarded exactly; a levitating ball falls onto a
+ * stop within the budget and the rest of a 100 s step is then at rest. */
+static void test_long_steps(void) {
+    fmi2Component c = make_initialized("floor", VR_u, 0.0);
+    CHECK(fmi2DoStep(c, 0, 100.0, fmi2True) == fmi2OK, "100 s on the floor: %s", last_log);
+    CHECK(fmi2DoStep(c, 100.0, 1e6, fmi2True) == fmi2OK, "1e6 s on the floor: %s", last_log);
+    double y[4], lt = 0;
+    fmi2GetReal(c, VR_OUT, 4, y);
+    CHECK(y[1] == 0.0 && y[2] == 0.0 && y[3] == 0.0, "not at rest on the floor: x %g v %g i %g", y[1], y[2], y[3]);
+    fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &lt);
+    CHECK(lt == 100.0 + 1e6, "time after long steps %.17g", lt);
+    fmi2FreeInstance(c);
+
+    double u_eq;
+    c = make_levitating("lev", &u_eq);
+    double up = u_eq * 1.05;
+    set1(c, VR_u, up);
+    CHECK(fmi2DoStep(c, 0, 100.0, fmi2True) == fmi2OK, "100 s from levitation: %s", last_log);
+    fmi2GetReal(c, VR_OUT, 4, y);
+    CHECK(y[1] == 6.3e-3 && y[2] == 0.0, "more current must end at the upper stop: x %g v %g", y[1], y[2]);
+    fmi2FreeInstance(c);
+
+    /* with a force lag the lag relaxes exactly while the ball rests: compare with 1 ms steps */
+    fmi2Component a = make("lagA"), b = make("lagB");
+    fmi2ValueReference vr[] = {VR_T_F, VR_u};
+    double val[] = {5e-3, 0.0};
+    fmi2Component both[2] = {a, b};
+    for (int k = 0; k < 2; k++) {
+        fmi2SetReal(both[k], vr, 2, val);
+        fmi2SetupExperiment(both[k], fmi2False, 0, 0.0, fmi2False, 0);
+        fmi2EnterInitializationMode(both[k]);
+        fmi2ExitInitializationMode(both[k]);
+        set1(both[k], VR_u, 0.3); /* 0.45 A: too little to lift the ball */
+    }
+    CHECK(fmi2DoStep(a, 0, 0.05, fmi2True) == fmi2OK, "one 50 ms step with a force lag");
+    for (int k = 0; k < 50; k++) fmi2DoStep(b, k * 1e-3, 1e-3, fmi2True);
+    double fa = get1(a, VR_F, NULL), fb = get1(b, VR_F, NULL);
+    CHECK(fabs(fa - fb) <= 1e-9 * fabs(fb) && fa > 0, "force lag at rest: %.17g vs %.17g", fa, fb);
+    fmi2FreeInstance(a);
+    fmi2FreeInstance(b);
+}
+
+/* 4: a frequency that overflows the phase is refused; the largest allowed one at the far end of
+ * the time range gives a finite y. */
+static void test_pickup_phase_finite(void) {
+    fmi2Component c = make("pickup");
+    last_log[0] = 0;
+    CHECK(set1(c, VR_f_d, 1e308) == fmi2Error && logged("variable f_d"), "f_d = 1e308: %s", last_log);
+    fmi2ValueReference vr[] = {VR_f_d, VR_A_d};
+    double val[] = {1e5, 1e-3};
+    CHECK(fmi2SetReal(c, vr, 2, val) == fmi2OK, "largest f_d refused: %s", last_log);
+    CHECK(fmi2SetupExperiment(c, fmi2False, 0, 1e9 - 1.0, fmi2False, 0) == fmi2OK, "start near the time limit");
+    CHECK(fmi2SetupExperiment(c, fmi2False, 0, 2e9, fmi2False, 0) == fmi2Error, "start beyond the time limit");
+    fmi2EnterInitializationMode(c);
+    fmi2ExitInitializationMode(c);
+    fmi2Status st;
+    double y = get1(c, VR_y, &st);
+    CHECK(st == fmi2OK && isfinite(y), "y = %g", y);
+    CHECK(fmi2DoStep(c, 1e9 - 1.0, 0.5, fmi2True) == fmi2OK, "step near the time limit: %s", last_log);
+    y = get1(c, VR_y, &st);
+    CHECK(st == fmi2OK && isfinite(y), "y = %g after the step", y);
+    fmi2FreeInstance(c);
+}
+
+/* 5: in initialization mode the outputs need consistent parameters; parameters stay readable. */
+static void test_init_mode_outputs(void) {
+    fmi2Component c = make("initmode");
+    set1(c, VR_x_start, 8.3e-3); /* = x_0: the force law is singular there */
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(c);
+    fmi2Status st;
+    last_log[0] = 0;
+    double F = get1(c, VR_F, &st);
+    CHECK(st == fmi2Error && logged("x_start"), "F = %g with status %d: %s", F, (int)st, last_log);
+    double xs = get1(c, VR_x_start, &st);
+    CHECK(st == fmi2OK && xs == 8.3e-3, "parameter unreadable: %g", xs);
+    set1(c, VR_x_start, 3e-3);
+    double y = get1(c, VR_y, &st);
+    CHECK(st == fmi2OK && fabs(y - 0.2 * (612.3 * 3e-3 + 0.0125)) < 1e-12, "y in initialization mode: %.17g", y);
+    fmi2FreeInstance(c);
+}
+
+/* 6: a non-physical start velocity is refused; the values after any failed step stay finite. */
+static void test_start_velocity(void) {
+    fmi2Component c = make("vstart");
+    last_log[0] = 0;
+    CHECK(set1(c, VR_v_start, 1e308) == fmi2Error && logged("variable v_start"), "v_start = 1e308: %s", last_log);
+    CHECK(set1(c, VR_v_start, 100.0) == fmi2OK, "v_start = 100 m/s refused");
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(c);
+    fmi2ExitInitializationMode(c);
+    fmi2Status ok = fmi2DoStep(c, 0, 1e-3, fmi2True);
+    double y[4];
+    fmi2Status st = fmi2GetReal(c, VR_OUT, 4, y);
+    CHECK(ok == fmi2OK && st == fmi2OK, "fast start: step %d get %d: %s", (int)ok, (int)st, last_log);
+    for (int k = 0; k < 4; k++) CHECK(isfinite(y[k]), "output %d = %g", k, y[k]);
+    /* thrown up at 100 m/s it hits the upper stop within 63 us, stops dead and falls away */
+    CHECK(y[1] < 6.3e-3 && y[1] > 6.29e-3 && y[2] < 0, "after 1 ms: x = %.17g v = %g", y[1], y[2]);
+    fmi2FreeInstance(c);
+}
+
+/* 7: every state the FMU hands out can be restored, also one taken before initialization with a
+ * start value that only the relations at initialization refuse. */
+static void test_state_before_init_restores(void) {
+    fmi2Component c = make("preinit");
+    CHECK(set1(c, VR_x_start, 1.0) == fmi2OK, "x_start = 1 m on its own is in range");
+    CHECK(set1(c, VR_x_start, 5.0) == fmi2Error && logged("variable x_start"), "x_start = 5 m: %s", last_log);
+    fmi2FMUstate s = NULL, r = NULL;
+    CHECK(fmi2GetFMUstate(c, &s) == fmi2OK, "get state before init");
+    size_t size = 0;
+    fmi2SerializedFMUstateSize(c, s, &size);
+    fmi2Byte *buf = malloc(size);
+    CHECK(fmi2SerializeFMUstate(c, s, buf, size) == fmi2OK, "serialize before init");
+    CHECK(fmi2DeSerializeFMUstate(c, buf, size, &r) == fmi2OK, "own pre-init state refused: %s", last_log);
+    CHECK(fmi2SetFMUstate(c, r) == fmi2OK, "set restored pre-init state");
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "restored state is instantiated");
+    CHECK(fmi2ExitInitializationMode(c) == fmi2Error && logged("x_start"), "relations at init: %s", last_log);
+    free(buf);
+    fmi2FreeInstance(c);
+}
+
+/* 8: FMU states still held at fmi2FreeInstance are freed with it. */
+static long live_blocks = 0;
+static void *count_calloc(size_t n, size_t size) {
+    void *p = calloc(n, size);
+    if (p) live_blocks++;
+    return p;
+}
+static void count_free(void *p) {
+    if (p) live_blocks--;
+    free(p);
+}
+static const fmi2CallbackFunctions counting = {logger, count_calloc, count_free, NULL, NULL};
+
+static void test_free_instance_frees_states(void) {
+    fmi2Component c = fmi2Instantiate("leak", fmi2CoSimulation, GUID, NULL, &counting, fmi2False, fmi2False);
+    fmi2ValueReference vr[] = {VR_T_d, VR_u};
+    double val[] = {2e-3, 0.3};
+    fmi2SetReal(c, vr, 2, val);
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(c);
+    fmi2ExitInitializationMode(c);
+    for (int k = 0; k < 5; k++) {
+        double u = 0.3 + 0.01 * k;
+        set1(c, VR_u, u);
+        fmi2DoStep(c, k * 1e-3, 1e-3, fmi2True);
+    }
+    fmi2FMUstate s1 = NULL, s2 = NULL, s3 = NULL;
+    fmi2GetFMUstate(c, &s1);
+    fmi2GetFMUstate(c, &s2);
+    fmi2GetFMUstate(c, &s2); /* reused in place */
+    size_t size = 0;
+    fmi2SerializedFMUstateSize(c, s1, &size);
+    fmi2Byte *buf = malloc(size);
+    fmi2SerializeFMUstate(c, s1, buf, size);
+    fmi2DeSerializeFMUstate(c, buf, size, &s3);
+    free(buf);
+    CHECK(live_blocks > 1, "states hold no memory? %ld blocks", live_blocks);
+    fmi2FreeInstance(c);
+    CHECK(live_blocks == 0, "%ld blocks left after fmi2FreeInstance with three states held", live_blocks);
+}
+
+/* 10: a buffer with a recomputed checksum is still checked value by value, as fmi2SetReal would. */
+static unsigned long long fnv1a(const fmi2Byte *b, size_t n) {
+    unsigned long long h = 1469598103934665603ULL;
+    for (size_t k = 0; k < n; k++) {
+        h ^= (unsigned char)b[k];
+        h *= 1099511628211ULL;
+    }
+    return h;
+}
+
+static void test_deserialize_checks_values(void) {
+    double u_eq;
+    fmi2Component c = make_levitating("values", &u_eq);
+    fmi2DoStep(c, 0, 1e-3, fmi2True);
+    fmi2FMUstate s = NULL;
+    fmi2GetFMUstate(c, &s);
+    size_t size = 0;
+    fmi2SerializedFMUstateSize(c, s, &size);
+    fmi2Byte *buf = malloc(size), *bad = malloc(size);
+    fmi2SerializeFMUstate(c, s, buf, size);
+    /* layout (maglev_plant.c): 28-byte header, the parameters, then time, u, x, v, i, F, contact */
+    size_t state_at = 28 + 8 * (size_t)MAGLEV_NPARAMS;
+    struct { size_t at; double value; const char *what; } cases[] = {
+        {state_at + 2 * 8, 8.3e-3, "x = x_0"},   {state_at + 2 * 8, -5.0, "x = -5 m"},
+        {state_at + 4 * 8, -1.0, "i = -1 A"},    {state_at + 4 * 8, 2.0, "i above i_max"},
+        {state_at + 3 * 8, NAN, "v = NaN"},      {state_at + 0 * 8, 1e300, "time = 1e300 s"},
+        {28 + 8 * (size_t)(VR_x_max - MAGLEV_FIRST_PARAM), 9e-3, "x_max above x_0"},
+        {28 + 8 * (size_t)(VR_m_k - MAGLEV_FIRST_PARAM), -1.0, "m_k < 0"},
+    };
+    for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+        memcpy(bad, buf, size);
+        memcpy(bad + cases[k].at, &cases[k].value, 8);
+        unsigned long long sum = fnv1a(bad, size - 8);
+        memcpy(bad + size - 8, &sum, 8);
+        fmi2FMUstate r = NULL;
+        last_log[0] = 0;
+        CHECK(fmi2DeSerializeFMUstate(c, bad, size, &r) == fmi2Error && r == NULL, "%s accepted", cases[k].what);
+        CHECK(logged("cannot have"), "%s: %s", cases[k].what, last_log);
+    }
+    /* the untouched buffer, its checksum recomputed, still restores: the test edits only values */
+    memcpy(bad, buf, size);
+    fmi2FMUstate r = NULL;
+    CHECK(fmi2DeSerializeFMUstate(c, bad, size, &r) == fmi2OK, "valid buffer refused: %s", last_log);
+    free(buf);
+    free(bad);
+    fmi2FreeInstance(c);
+}
+
 int main(void) {
     test_instantiate_arguments();
     test_call_sequence();
@@ -329,6 +616,14 @@ int main(void) {
     test_fmu_state();
     test_delay_state();
     test_stops();
+    test_step_work_bounded();
+    test_long_steps();
+    test_pickup_phase_finite();
+    test_init_mode_outputs();
+    test_start_velocity();
+    test_state_before_init_restores();
+    test_free_instance_frees_states();
+    test_deserialize_checks_values();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }
