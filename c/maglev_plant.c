@@ -389,6 +389,47 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
     return 0;
 }
 
+/* ---- the formulas the toolkit needs besides the simulation (one place: here) ---- */
+
+double maglev_force(const MaglevPlant *m, double i, double x, double *dF_dx, double *dF_di) {
+    double gap = P(m, x_0) - x, F = static_force(m, i, x);
+    if (dF_dx) *dF_dx = 2 * F / gap;                           /* Eq. 16 */
+    if (dF_di) *dF_di = 2 * P(m, k_c) * i / (gap * gap);       /* Eq. 17 */
+    return F;
+}
+
+double maglev_sensor_volts(const MaglevPlant *m, double x, double *dV_dx) {
+    if (dV_dx) *dV_dx = P(m, k_x) + P(m, k_x2) * (2 * x - P(m, x_cal));
+    return P(m, k_x) * x + P(m, y_0) + P(m, k_x2) * x * (x - P(m, x_cal)); /* Eq. 12 */
+}
+
+double maglev_reading(const MaglevPlant *m, double x, double t) {
+    double volts = maglev_sensor_volts(m, x, NULL);
+    if (P(m, A_d) != 0) volts += P(m, A_d) * sin(2 * PI * P(m, f_d) * t + P(m, phi_d));
+    return P(m, k_AD) * volts + P(m, y_MU0); /* Eq. 13, before the converter's limits */
+}
+
+double maglev_position_for_reading(const MaglevPlant *m, double y, double t) {
+    double lo = P(m, x_min), hi = P(m, x_max);
+    double r_lo = maglev_reading(m, lo, t), r_hi = maglev_reading(m, hi, t);
+    int rising = r_hi >= r_lo;
+    if (rising ? y <= r_lo : y >= r_lo) return lo;
+    if (rising ? y >= r_hi : y <= r_hi) return hi;
+    for (int k = 0; k < 200 && hi - lo > 1e-15 * (1 + fabs(lo)); k++) { /* bracketed: bisection */
+        double mid = 0.5 * (lo + hi);
+        if ((maglev_reading(m, mid, t) < y) == rising) lo = mid; else hi = mid;
+    }
+    return 0.5 * (lo + hi);
+}
+
+double maglev_equilibrium_current(const MaglevPlant *m, double x) {
+    return (P(m, x_0) - x) * sqrt(P(m, m_k) * P(m, g) / P(m, k_c)); /* Eq. 8 at rest */
+}
+
+double maglev_input_for_current(const MaglevPlant *m, double i) {
+    return (i / P(m, k_i) - P(m, u_0)) / P(m, k_DA); /* Eq. 5 and Eq. 1 inverted */
+}
+
 /* ---- history of the input, for the delay ---- */
 
 static int hist_push(MaglevPlant *m, double t, double u, const MaglevAllocator *a, char *msg, size_t len) {
@@ -535,12 +576,7 @@ double maglev_get(const MaglevPlant *m, MaglevVR vr) {
         if (P(m, T_F) > 0) return m->F;
         return static_force(m, maglev_get(m, VR_i), m->x);
     }
-    case VR_y: {
-        double x = m->x;
-        double yv = P(m, k_x) * x + P(m, y_0) + P(m, k_x2) * x * (x - P(m, x_cal)); /* Eq. 12 */
-        if (P(m, A_d) != 0) yv += P(m, A_d) * sin(2 * PI * P(m, f_d) * m->time + P(m, phi_d));
-        return clip(P(m, k_AD) * yv + P(m, y_MU0), -MU_LIMIT, MU_LIMIT); /* Eq. 13 */
-    }
+    case VR_y: return clip(maglev_reading(m, m->x, m->time), -MU_LIMIT, MU_LIMIT); /* Eq. 13 */
     default:
         if (vr >= MAGLEV_FIRST_PARAM && vr <= VR_solver_step) return maglev_param(m, vr);
         return NAN;

@@ -140,6 +140,20 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
 /* The value of any variable now (outputs are computed from the state). */
 double maglev_get(const MaglevPlant *m, MaglevVR vr);
 
+/* The formulas the toolkit needs besides the simulation, so that they live once.
+ * Static force (Eq. 8) and, when the pointers are given, its partials (Eq. 16, 17). */
+double maglev_force(const MaglevPlant *m, double i, double x, double *dF_dx, double *dF_di);
+/* Sensor voltage (Eq. 12, with the k_x2 deviation, no pickup) and its slope dV/dx. */
+double maglev_sensor_volts(const MaglevPlant *m, double x, double *dV_dx);
+/* Noise-free A/D reading [MU] (Eq. 12, 13, pickup at time t), before the converter's limits. */
+double maglev_reading(const MaglevPlant *m, double x, double t);
+/* The position between the stops whose reading at time t is y (the nearest stop when none is). */
+double maglev_position_for_reading(const MaglevPlant *m, double y, double t);
+/* The current holding the ball at rest at x (Eq. 8 with x'' = x' = 0), and the D/A input giving a
+ * current (Eq. 1, 5), neither limited. */
+double maglev_equilibrium_current(const MaglevPlant *m, double x);
+double maglev_input_for_current(const MaglevPlant *m, double i);
+
 /* Deep copy (history included); dst must be released or zeroed beforehand. */
 int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a);
 void maglev_release(MaglevPlant *m, const MaglevAllocator *a);

@@ -18,6 +18,14 @@ double maglev_replay_param_default(int k) {
     return maglev_variables[MAGLEV_FIRST_PARAM + k].start;
 }
 
+static const MaglevVariable *param_row(int k) {
+    return k >= 0 && k < MAGLEV_NPARAMS ? &maglev_variables[MAGLEV_FIRST_PARAM + k] : NULL;
+}
+
+double maglev_replay_param_min(int k) { return param_row(k) ? param_row(k)->min : NAN; }
+double maglev_replay_param_max(int k) { return param_row(k) ? param_row(k)->max : NAN; }
+const char *maglev_replay_param_unit(int k) { return param_row(k) ? param_row(k)->unit : NULL; }
+
 static int load(MaglevPlant *m, const double *params, char *msg, size_t len) {
     maglev_defaults(m);
     for (int k = 0; k < MAGLEV_NPARAMS; k++) {
@@ -31,6 +39,41 @@ int maglev_replay_check_params(const double *params, char *msg, size_t len) {
     MaglevPlant m;
     if (load(&m, params, msg, len)) return -1;
     return maglev_check_params(&m, msg, len);
+}
+
+int maglev_replay_point(const double *params, double x, double i, MaglevPoint *out, char *msg, size_t len) {
+    MaglevPlant m;
+    if (maglev_replay_check_params(params, msg, len)) return -1;
+    load(&m, params, msg, len);
+    if (!isfinite(x)) {
+        snprintf(msg, len, "position x = %g m is not finite", x);
+        return -1;
+    }
+    if (isnan(i)) i = maglev_equilibrium_current(&m, x);
+    double dv_dx;
+    out->x = x;
+    out->i = i;
+    out->u = maglev_input_for_current(&m, i);
+    out->F = maglev_force(&m, i, x, &out->dF_dx, &out->dF_di);
+    maglev_sensor_volts(&m, x, &dv_dx);
+    out->dy_dx = maglev_param(&m, VR_k_AD) * dv_dx;
+    out->y = maglev_reading(&m, x, 0.0);
+    return 0;
+}
+
+int maglev_replay_positions(const double *params, const double *y, size_t n, double t, double *x, char *msg,
+                            size_t len) {
+    MaglevPlant m;
+    if (maglev_replay_check_params(params, msg, len)) return -1;
+    load(&m, params, msg, len);
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(y[k])) {
+            snprintf(msg, len, "reading y[%zu] = %g is not finite", k, y[k]);
+            return -1;
+        }
+        x[k] = maglev_position_for_reading(&m, y[k], t);
+    }
+    return 0;
 }
 
 static int setup(MaglevPlant *m, const double *params, double u0, char *msg, size_t len) {

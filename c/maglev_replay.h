@@ -28,9 +28,31 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
  * Returns 0, or -1 with a message naming the variable. */
 int maglev_replay_check_params(const double *params, char *msg, size_t msglen);
 
+/* The plant's formulas at position x [m] and current i [A] (NaN: the equilibrium current), for
+ * params: the point, the equilibrium's D/A input, the reading and the slopes a linearisation needs. */
+typedef struct {
+    double x, i;        /* [m] [A] */
+    double u;           /* [MU] D/A input giving i (Eq. 1, 5), unlimited */
+    double y;           /* [MU] noise-free reading at t = 0 (Eq. 12, 13), unlimited */
+    double F;           /* [N] static force (Eq. 8) */
+    double dF_dx, dF_di; /* [N/m] [N/A] (Eq. 16, 17) */
+    double dy_dx;       /* [MU/m] reading slope */
+} MaglevPoint;
+
+int maglev_replay_point(const double *params, double x, double i, MaglevPoint *out, char *msg, size_t msglen);
+
+/* The position between the stops [m] where the model reads y [MU] at time t [s], for n readings;
+ * readings beyond the travel give the nearest stop. Returns 0, or -1 with a message. */
+int maglev_replay_positions(const double *params, const double *y, size_t n, double t, double *x,
+                            char *msg, size_t msglen);
+
 /* Number of parameters and their names, in the order params uses. */
 int maglev_replay_nparams(void);
 const char *maglev_replay_param_name(int k);
 double maglev_replay_param_default(int k);
+/* The range maglev_check_value enforces and the unit, from the C variable table. */
+double maglev_replay_param_min(int k);
+double maglev_replay_param_max(int k);
+const char *maglev_replay_param_unit(int k);
 
 #endif

@@ -50,7 +50,12 @@ def test_bad_record_gives_one_line_and_writes_nothing(tmp_path):
 @pytest.mark.parametrize("args, words", [
     (["synth", "--out", "x.csv", "--effect", "warp:k=1"], "unknown effect 'warp'"),
     (["step", "--out", "o", "--fmu", "/no/such.fmu"], "FMU not found"),
-    (["step", "--out", "o", "--params", "nosuchset"], "unknown parameter set"),
+    (["step", "--out", "o", "--params", "nosuchset"], "invalid choice: 'nosuchset'"),
+    (["step", "--out", "o", "--amplitude", "5"], "outside the readings of the travel [0.0025, 0.774] MU"),
+    (["linearize", "--position", "0.01m"], "--position 10 mm lies outside the travel"),
+    (["linearize", "--position", "10"], "--position 10 mm lies outside the travel between the stops [0, 6.3] mm"),
+    (["linearize", "--position", "3.2 furlongs"], "is not a number with an optional unit"),
+    (["linearize", "--current", "5"], "--current 5 A lies outside the amplifier's range (0, i_max = 1.5] A"),
     (["identify", "/no/such.csv"], "file not found"),
     (["step", "--out", "o", "--duration", "-1"], "must be a positive finite number"),
     (["frobnicate"], "invalid choice"),
@@ -61,6 +66,40 @@ def test_errors_are_one_line(tmp_path, args, words):
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0] and "Traceback" not in r.stderr, r.stderr
+
+
+def test_errors_write_nothing(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "maglev_cosim", "step", "--amplitude", "5", "--out", "o"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2 and list(tmp_path.iterdir()) == []
+
+
+def test_positions_take_mm_or_a_unit_and_linearize_writes_nothing_unasked(tmp_path):
+    outs = []
+    for pos in ("3.2", "3.2mm", "0.0032m", "3200um"):
+        r = subprocess.run([sys.executable, "-m", "maglev_cosim", "linearize", "--position", pos],
+                           capture_output=True, text=True, cwd=tmp_path, timeout=120)
+        assert r.returncode == 0, r.stderr
+        outs.append(r.stdout)
+    assert len(set(outs)) == 1 and "x = 3.2 mm" in outs[0] and "bandwidth_hz 29.6" in outs[0]
+    assert list(tmp_path.iterdir()) == []           # no ./linearize/ unless --plots is given
+
+
+def test_help_version_and_module_entry_point():
+    r = subprocess.run([sys.executable, "-m", "maglev_cosim", "--version"], capture_output=True, text=True, timeout=60)
+    from maglev_cosim import __version__
+
+    assert r.returncode == 0 and r.stdout.strip() == f"maglev-cosim {__version__}"
+    r = subprocess.run([sys.executable, "-m", "maglev_cosim", "--help"], capture_output=True, text=True, timeout=60)
+    assert "examples:" in r.stdout and "periodic_disturbance: A_d [V], f_d [Hz], phi_d [rad]" in r.stdout
+    for command in ("step", "linearize", "bench", "diagnose", "identify", "synth", "demo"):
+        r = subprocess.run([sys.executable, "-m", "maglev_cosim", command, "--help"], capture_output=True, text=True,
+                           timeout=60)
+        options = [ln for ln in r.stdout.splitlines() if ln.strip().startswith("--")]
+        assert options, command
+        # every option has a help text: a line with the option and its description, or a wrapped one
+        for ln in options:
+            assert len(ln.split()) > 1 or ln.strip() in ("--no-noise", "--no-diagnose", "--no-simplex"), (command, ln)
 
 
 def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_path, fmu_path):

@@ -43,6 +43,47 @@ def _finite(text: str) -> float:
     return v
 
 
+#: Units a quantity on the command line may carry, as factors to SI.
+_LENGTH = {"mm": 1e-3, "m": 1.0, "um": 1e-6, "µm": 1e-6}
+_CURRENT = {"A": 1.0, "mA": 1e-3}
+
+
+def _quantity(units: dict[str, float], default: str):
+    """An argparse type for a number with an optional unit suffix (``3.2``, ``3.2mm``, ``0.0032 m``);
+    a bare number is in ``default``. Returns the value in SI units."""
+
+    def parse(text: str) -> float:
+        t = text.strip()
+        for unit in sorted(units, key=len, reverse=True):
+            if t.endswith(unit):
+                number, factor = t[: -len(unit)].strip(), units[unit]
+                break
+        else:
+            number, factor = t, units[default]
+        try:
+            v = float(number)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not a number with an optional unit ({', '.join(units)})") from None
+        if not np.isfinite(v):
+            raise argparse.ArgumentTypeError(f"{text} is not finite")
+        return v * factor
+
+    parse.__name__ = f"quantity in {default}"
+    return parse
+
+
+_length = _quantity(_LENGTH, "mm")
+_current = _quantity(_CURRENT, "A")
+
+
+def _check_position(x: float, p, option: str = "--position") -> None:
+    """A position [m] must lie on the ball's travel, between the stops."""
+    if not p.x_min <= x <= p.x_max:
+        raise CliError(f"{option} {x * 1e3:g} mm lies outside the travel between the stops "
+                       f"[{p.x_min * 1e3:g}, {p.x_max * 1e3:g}] mm (positions are in mm; add 'm' for metres)")
+
+
 # ----------------------------------------------------------------------------- step
 
 def cmd_step(a: argparse.Namespace) -> dict:
@@ -59,14 +100,24 @@ def cmd_step(a: argparse.Namespace) -> dict:
 
     from .fmu import ensure_fmu
 
+    from .formulas import point
+
     out = Path(a.out)
     p = resolve_params(a.params)
-    fmu = ensure_fmu(a.fmu)
+    _check_position(a.position, p)
     pid = PIDConfig()
+    if a.duration is None:   # a step settles in 2 s; a square or sine wave shows two 3 s periods
+        a.duration = 2.0 if a.reference == "step" else 6.0
     n = int(round(a.duration / pid.ts))
     if n < 10:
         raise CliError(f"--duration {a.duration} s is shorter than 10 controller samples")
     op = operating_point(p, a.position)
+    lo, hi = point(p, p.x_min).y, point(p, p.x_max).y
+    for level in (op.y_MU + a.amplitude, op.y_MU - a.amplitude if a.reference == "sine" else op.y_MU):
+        if not lo <= level <= hi:
+            raise CliError(f"--amplitude {a.amplitude:g} MU takes the reference to {level:.4g} MU, outside the "
+                           f"readings of the travel [{lo:.4g}, {hi:.4g}] MU from {a.position * 1e3:g} mm")
+    fmu = ensure_fmu(a.fmu)
     w = reference_signal(a.reference, n, pid.ts, base=op.y_MU, amplitude=a.amplitude)
     _progress(f"closed loop on the FMU: {a.reference} of {a.amplitude} MU from x = {a.position * 1e3:.2f} mm, "
               f"{a.duration} s at {1 / pid.ts:.0f} Hz (parameters: {a.params})")
@@ -93,9 +144,9 @@ def cmd_step(a: argparse.Namespace) -> dict:
     ax2 = ax[0].twinx()
     ax2.plot(res.t, res.x * 1e3, alpha=0)
     ax2.set_ylabel("x [mm]")
-    lo, hi = ax[0].get_ylim()
-    c = p.k_AD * p.k_x
-    ax2.set_ylim((lo - p.k_AD * p.y_0 - p.y_MU0) / c * 1e3, (hi - p.k_AD * p.y_0 - p.y_MU0) / c * 1e3)
+    lo, hi = ax[0].get_ylim()    # the same axis in mm (Eq. 12, 13 inverted; beyond the stops: linear)
+    slope, base = op_slope(p, a.position)
+    ax2.set_ylim((lo - base) / slope * 1e3 + a.position * 1e3, (hi - base) / slope * 1e3 + a.position * 1e3)
     ax[0].legend(loc="lower right", fontsize=8)
     ax[1].plot(res.t, res.u, color="tab:green", lw=1, label="u (controller output)")
     ax[1].set_ylabel("u [MU]")
@@ -116,6 +167,14 @@ def cmd_step(a: argparse.Namespace) -> dict:
     return report
 
 
+def op_slope(p, x: float) -> tuple[float, float]:
+    """The reading's slope [MU/m] and value [MU] at ``x`` [m] (Eq. 12, 13)."""
+    from .formulas import point
+
+    pt = point(p, x)
+    return pt.dy_dx, pt.y
+
+
 # ----------------------------------------------------------------------------- linearize
 
 def cmd_linearize(a: argparse.Namespace) -> dict:
@@ -125,27 +184,32 @@ def cmd_linearize(a: argparse.Namespace) -> dict:
     from .pid import PIDConfig
 
     p = resolve_params(a.params)
+    _check_position(a.position, p)
     op = operating_point(p, a.position)
     i = a.current if a.current is not None else op.i
+    if not 0 < i <= p.i_max:
+        raise CliError(f"--current {i:g} A lies outside the amplifier's range (0, i_max = {p.i_max:g}] A")
     sys_ = linearize(p, a.position, i=i)
     tf = transfer_function(p, a.position, i=i)
     poles = np.sort_complex(np.asarray(sys_.poles()))
     zeros = np.asarray(tf.zeros())
     np.set_printoptions(precision=6, suppress=False, linewidth=120)
-    print(f"operating point: x = {a.position} m, v = 0, i = {i:.6g} A, u = {op.u_MU:.6g} MU, y = {op.y_MU:.6g} MU "
+    print(f"operating point: x = {a.position * 1e3:g} mm, v = 0, i = {i:.6g} A, u = {op.u_MU:.6g} MU, y = {op.y_MU:.6g} MU "
           f"(parameters: {a.params})")
     print("A =\n", sys_.A, "\nB =\n", sys_.B, "\nC =\n", sys_.C, "\nD =\n", sys_.D)
     print("poles:", poles)
     print("zeros:", zeros)
     print("H(s) =", tf)
     cfg = PIDConfig()
-    outdir = Path(a.plots)
-    outdir.mkdir(parents=True, exist_ok=True)
-    plot_root_locus(p, a.position, cfg, outdir / "root_locus.png")
-    plot_closed_loop_bode(p, a.position, cfg, outdir / "closed_loop_bode.png")
     cl = closed_loop_report(p, a.position, cfg)
-    print(f"wrote {outdir / 'root_locus.png'}, {outdir / 'closed_loop_bode.png'}")
-    print("closed loop with the discrete PID: " + json.dumps(_jsonable(cl))[:600])
+    print("closed loop with the discrete PID: " + ", ".join(
+        f"{k} {_short(v)}" for k, v in cl.items() if not isinstance(v, (dict, list, tuple, np.ndarray))))
+    if a.plots:
+        outdir = Path(a.plots)
+        outdir.mkdir(parents=True, exist_ok=True)
+        plot_root_locus(p, a.position, cfg, outdir / "root_locus.png")
+        plot_closed_loop_bode(p, a.position, cfg, outdir / "closed_loop_bode.png")
+        print(f"wrote {outdir / 'root_locus.png'}, {outdir / 'closed_loop_bode.png'}")
     data = {"operating_point": {"x": a.position, "v": 0.0, "i": i, "u": op.u_MU, "y": op.y_MU},
             "A": np.asarray(sys_.A).tolist(), "B": np.asarray(sys_.B).tolist(), "C": np.asarray(sys_.C).tolist(),
             "D": np.asarray(sys_.D).tolist(),
@@ -157,6 +221,10 @@ def cmd_linearize(a: argparse.Namespace) -> dict:
         Path(a.json).write_text(json.dumps(data, indent=2))
         print(f"wrote {a.json}")
     return data
+
+
+def _short(v) -> str:
+    return f"{v:.4g}" if isinstance(v, (float, np.floating)) else str(v)
 
 
 def _jsonable(o):
@@ -290,62 +358,119 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    ap = _Parser(prog="maglev-cosim", description="CE152 magnetic levitation FMU toolkit")
-    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+EXAMPLES = """examples:
+  maglev-cosim step --out runs/step                      closed-loop step of 0.05 MU at 3.2 mm
+  maglev-cosim step --reference sine --amplitude 0.03 --position 3.5 --out runs/sine
+  maglev-cosim linearize --params eq18 --current 0.5612 --plots runs/lin --json runs/lin.json
+  maglev-cosim synth --out rec.csv --effect delay:T_d=0.0025 --seed 3
+  maglev-cosim diagnose rec.csv --out runs/diag
+  python -m maglev_cosim --version
+"""
 
-    s = sub.add_parser("step", help="closed-loop step (or square/sine) on the FMU, checked against the reference")
-    s.add_argument("--amplitude", type=_finite, default=0.05, help="reference change [MU] (default 0.05)")
-    s.add_argument("--reference", choices=["step", "square", "sine"], default="step")
-    s.add_argument("--duration", type=_positive, default=2.0, help="[s] (default 2)")
-    s.add_argument("--params", default="section3", help="parameter set: section3, eq18, baseline")
-    s.add_argument("--position", type=_positive, default=0.0032, help="operating point [m] (default 0.0032)")
-    s.add_argument("--fmu", default=None, help="FMU to use (default: build/maglev.fmu, built if missing)")
-    s.add_argument("--out", required=True, help="output folder")
+
+def _catalogue_help() -> str:
+    from .diagnose import CATALOGUE
+    from .fast import param_table
+
+    lines = ["effect catalogue (name: FMU parameters [unit], what it models):"]
+    table = param_table()
+    for e in CATALOGUE.values():
+        pars = ", ".join(f"{n} [{table[n][3]}]" for n in e.params)
+        lines.append(f"  {e.name}: {pars}\n      {e.description}")
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
+    fmt = argparse.RawDescriptionHelpFormatter
+    ap = _Parser(prog="maglev-cosim", formatter_class=fmt, epilog=EXAMPLES + "\n" + _catalogue_help(),
+                 description="The Humusoft CE152 magnetic levitation rig as an FMI co-simulation FMU, and a "
+                             "toolkit that drives it in closed loop and reconciles it with measured records. "
+                             "Positions are in mm (or add a unit: 3.2mm, 0.0032m), converter values in MU.")
+    ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
+    fmu_help = "FMU to use (default: the installed or built maglev.fmu)"
+
+    s = sub.add_parser("step", formatter_class=fmt, epilog=EXAMPLES,
+                       help="closed-loop step, square or sine on the FMU, checked against the Python reference",
+                       description="The paper's discrete PID (Eq. 24/25) drives the FMU through fmpy from a settled "
+                                   "start; the same run on the independent pure-Python plant is the check.")
+    s.add_argument("--amplitude", type=_finite, default=0.05, metavar="MU",
+                   help="reference change [MU] (default 0.05 MU, about 0.4 mm); the reference must stay within "
+                        "the readings of the travel")
+    s.add_argument("--reference", choices=["step", "square", "sine"], default="step",
+                   help="step at 0.1 s; square and sine waves of period 3 s (Sec. 5)")
+    s.add_argument("--duration", type=_positive, default=None, metavar="S",
+                   help="[s] (default 2 s for a step, 6 s, two periods, for square and sine)")
+    s.add_argument("--params", default="section3", choices=["section3", "eq18", "baseline"],
+                   help="parameter set (default section3, the FMU's defaults)")
+    s.add_argument("--position", type=_length, default=0.0032, metavar="X",
+                   help="operating point, between the stops (default 3.2 mm)")
+    s.add_argument("--fmu", default=None, help=fmu_help)
+    s.add_argument("--out", required=True, help="output folder for step.csv, step.png, step.json")
     s.set_defaults(func=cmd_step)
 
-    s = sub.add_parser("linearize", help="Jacobian linearisation (Eq. 16-19), root locus and Bode plots")
-    s.add_argument("--position", type=_positive, default=0.0032, help="operating point [m]")
-    s.add_argument("--current", type=_positive, default=None, help="operating current [A] (default: equilibrium)")
-    s.add_argument("--params", default="eq18")
-    s.add_argument("--json", default=None, help="write A, B, C, D, poles ... to this JSON file")
-    s.add_argument("--plots", default="linearize", help="folder for the PNGs (default ./linearize)")
+    s = sub.add_parser("linearize", formatter_class=fmt, help="Jacobian linearisation (Eq. 16-19) and the "
+                       "closed loop with the PID; root locus and Bode plots on request",
+                       description="A, B, C, D, poles, zeros and H(s) at an operating point (Eq. 16-19), and the "
+                                   "discrete closed loop with the paper's PID. Nothing is written unless --json "
+                                   "or --plots is given.")
+    s.add_argument("--position", type=_length, default=0.0032, metavar="X",
+                   help="operating point between the stops (default 3.2 mm, the paper's Section 4)")
+    s.add_argument("--current", type=_current, default=None, metavar="I",
+                   help="operating current (default: the equilibrium current; the paper uses 0.5612 A)")
+    s.add_argument("--params", default="eq18", choices=["section3", "eq18", "baseline"],
+                   help="parameter set (default eq18, the reading of the paper's Eq. 18)")
+    s.add_argument("--json", default=None, metavar="FILE", help="write A, B, C, D, poles, zeros, H(s) and the "
+                   "closed-loop figures to this JSON file")
+    s.add_argument("--plots", default=None, metavar="DIR", help="write root_locus.png and closed_loop_bode.png here")
     s.set_defaults(func=cmd_linearize)
 
-    s = sub.add_parser("bench", help="performance table: fmpy loop, cffi fast path, pure-Python reference")
-    s.add_argument("--fmu", default=None)
-    s.add_argument("--duration", type=_positive, default=10.0, help="closed-loop length [s] (default 10)")
+    s = sub.add_parser("bench", help="tables of figures: fmpy loop, cffi fast path, pure-Python reference, "
+                       "diagnosis time")
+    s.add_argument("--fmu", default=None, help=fmu_help)
+    s.add_argument("--duration", type=_positive, default=10.0, metavar="S", help="closed-loop length [s] (default 10)")
     s.add_argument("--no-diagnose", action="store_true", help="skip timing a 12 s diagnosis")
-    s.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    s.add_argument("--json", default=None, metavar="FILE", help="also write the figures to this JSON file")
     s.set_defaults(func=cmd_bench)
 
-    s = sub.add_parser("diagnose", help="replay, calibrate, find and add the effect a record shows")
-    s.add_argument("record")
-    s.add_argument("--out", required=True)
-    s.add_argument("--fmu", default=None)
-    s.add_argument("--effects", default=None, help="comma-separated subset of the catalogue")
+    s = sub.add_parser("diagnose", formatter_class=fmt, epilog=_catalogue_help(),
+                       help="calibrate the model on a record, find the effect it lacks, report before/after",
+                       description="Replays the record in closed loop, calibrates k_c, x_0, k_FV, u_0, tries every "
+                                   "effect of the catalogue on held-out blocks, and writes report.md, "
+                                   "diagnosis.json and a calibrated FMU.")
+    s.add_argument("record", help="record file (docs/record-format.md)")
+    s.add_argument("--out", required=True, help="output folder")
+    s.add_argument("--fmu", default=None, help=fmu_help)
+    s.add_argument("--effects", default=None, metavar="A,B", help="comma-separated subset of the catalogue below")
     s.add_argument("--workers", type=int, default=None, help="processes for candidate fits (default 2)")
     s.set_defaults(func=cmd_diagnose)
 
     s = sub.add_parser("identify", help="the paper's identification methods on a record (Sec. 3.4)")
-    s.add_argument("record")
-    s.add_argument("--json", default=None)
-    s.add_argument("--no-simplex", action="store_true")
+    s.add_argument("record", help="record file (docs/record-format.md)")
+    s.add_argument("--json", default=None, metavar="FILE", help="write the results to this JSON file")
+    s.add_argument("--no-simplex", action="store_true", help="skip the Nelder-Mead fit of k_FV (Sec. 3.4.3)")
     s.set_defaults(func=cmd_identify)
 
-    s = sub.add_parser("synth", help="write a synthetic record from the rig emulator")
-    s.add_argument("--out", required=True)
-    s.add_argument("--effect", action="append", help="NAME:PARAM=VALUE[,PARAM=VALUE] (repeatable)")
-    s.add_argument("--param", action="append", help="plant parameter override NAME=VALUE (repeatable)")
-    s.add_argument("--reference", choices=["square", "sine", "steps", "chirp"], default="steps")
-    s.add_argument("--duration", type=_positive, default=12.0)
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--no-noise", action="store_true")
+    s = sub.add_parser("synth", formatter_class=fmt, epilog=_catalogue_help(),
+                       help="write a synthetic record from the rig emulator (truth in a .truth.json sidecar)")
+    s.add_argument("--out", required=True, help="record file to write")
+    s.add_argument("--effect", action="append", metavar="NAME:PARAM=VALUE",
+                   help="an effect to plant, e.g. delay:T_d=0.0025 (repeatable; catalogue below, plus "
+                        "force_exponent:n=3 and coulomb_friction:F_c=...)")
+    s.add_argument("--param", action="append", metavar="NAME=VALUE", help="plant parameter override in SI units "
+                   "(repeatable)")
+    s.add_argument("--reference", choices=["square", "sine", "steps", "chirp"], default="steps",
+                   help="reference: random staircase (default, most informative), square, sine or chirp")
+    s.add_argument("--duration", type=_positive, default=12.0, metavar="S", help="[s] (default 12)")
+    s.add_argument("--seed", type=int, default=0, help="random seed of the noise and the staircase (default 0)")
+    s.add_argument("--no-noise", action="store_true", help="no sensor noise, random force or quantisation")
     s.set_defaults(func=cmd_synth)
 
     s = sub.add_parser("demo", help="the main job: build, step, linearise, synthesise and diagnose a record")
-    s.add_argument("--out", default="out")
-    s.add_argument("--seed", type=int, default=7)
+    s.add_argument("--out", required=True, help="output folder")
+    s.add_argument("--seed", type=int, default=7, help="seed of the synthetic record (default 7)")
     s.set_defaults(func=cmd_demo)
     return ap
 

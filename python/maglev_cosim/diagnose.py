@@ -528,7 +528,7 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
                 results.append((entry, vals))
                 say(f"  [{k}/{len(jobs)}] {res['effect']}: "
                     + ", ".join(f"{p} = {v:.4g}" for p, v in eff_vals.items())
-                    + f"; held-out cost {100 * stats['held_out_gain']:+.1f} % "
+                    + f"; held-out cost change {-100 * stats['held_out_gain']:+.1f} % "
                     + f"(LR {stats['lr_statistic']:.1f} vs {stats['threshold']:.1f}) -> "
                     + ("accepted" if ok else "rejected"))
             accepted = [r for r in results if r[0]["accepted"]]

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import fcntl
 import importlib.util
-import math
 import re
 import sys
 from collections.abc import Mapping
@@ -93,6 +92,14 @@ def param_names() -> list[str]:
     return [m.ffi.string(m.lib.maglev_replay_param_name(k)).decode() for k in range(m.lib.maglev_replay_nparams())]
 
 
+def param_table() -> dict[str, tuple[float, float, float, str]]:
+    """``name: (default, min, max, unit)`` for every FMU parameter, from the C variable table."""
+    m = _lib()
+    return {n: (float(m.lib.maglev_replay_param_default(k)), float(m.lib.maglev_replay_param_min(k)),
+                float(m.lib.maglev_replay_param_max(k)), m.ffi.string(m.lib.maglev_replay_param_unit(k)).decode())
+            for k, n in enumerate(param_names())}
+
+
 def default_params() -> dict[str, float]:
     """The C defaults (the FMU's start values, Section 3)."""
     m = _lib()
@@ -128,8 +135,9 @@ def check_params(params: Mapping[str, float] | None) -> None:
 
 def equilibrium_input(p: Mapping[str, float]) -> float:
     """D/A input [MU] holding the ball at rest at ``x_start`` (Eq. 8 at rest, Eq. 1, 5)."""
-    i = (p["x_0"] - p["x_start"]) * math.sqrt(p["m_k"] * p["g"] / p["k_c"])
-    return (i / p["k_i"] - p["u_0"]) / p["k_DA"]
+    from .formulas import point
+
+    return point(p, p["x_start"]).u
 
 
 def closed_loop(params: Mapping[str, float] | None, w: np.ndarray, *, ts: float = 1e-3, kp: float = 2.0,

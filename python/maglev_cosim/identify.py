@@ -88,8 +88,9 @@ def equilibrium_points(rec: Record, params: dict[str, float]) -> tuple[np.ndarra
                          "the paper's methods need equilibrium points at two positions at least")
     y = np.array([s.y for s in seg])
     u = np.array([s.u for s in seg])
-    x = ((y - params["y_MU0"]) / params["k_AD"] - params["y_0"]) / params["k_x"]
-    return x, params["k_DA"] * u + params["u_0"]
+    from .formulas import positions
+
+    return positions(params, y), params["k_DA"] * u + params["u_0"]   # Eq. 12/13 inverted, Eq. 1
 
 
 def two_point(x: np.ndarray, u_v: np.ndarray, m_k: float, g: float) -> dict[str, float]:

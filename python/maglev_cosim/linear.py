@@ -7,12 +7,12 @@ the force ``F`` is a fourth state.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import control
 import numpy as np
 
+from . import formulas
 from .params import PlantParams
 
 #: Eq. 18 as printed (states x, v, i; input u_MU; output y_MU).
@@ -37,32 +37,22 @@ class OperatingPoint:
 
 
 def equilibrium_current(p: PlantParams, x: float) -> float:
-    """Current [A] holding the ball at rest at ``x`` (Eq. 8 with ẍ = ẋ = 0)."""
-    return (p.x_0 - x) * math.sqrt(p.m_k * p.g / p.k_c)
-
-
-def sensor_reading(p: PlantParams, x: float) -> float:
-    """Noise-free A/D reading [MU] at position ``x`` [m] (Eq. 12, 13; pickup excluded)."""
-    yv = p.k_x * x + p.y_0 + p.k_x2 * x * (x - p.x_cal)
-    return p.k_AD * yv + p.y_MU0
+    """Current [A] holding the ball at rest at ``x`` [m] (Eq. 8 with ẍ = ẋ = 0)."""
+    return formulas.point(p, x).i
 
 
 def operating_point(p: PlantParams, x: float) -> OperatingPoint:
-    """The equilibrium at position ``x`` [m]: current, D/A input (Eq. 1, 5) and reading."""
-    i = equilibrium_current(p, x)
-    u = (i / p.k_i - p.u_0) / p.k_DA
-    return OperatingPoint(x, 0.0, i, u, sensor_reading(p, x))
+    """The equilibrium at position ``x`` [m]: current, D/A input (Eq. 1, 5) and reading (Eq. 12, 13)."""
+    pt = formulas.point(p, x)
+    return OperatingPoint(x, 0.0, pt.i, pt.u, pt.y)
 
 
 def linearize(p: PlantParams, x: float | None = None, i: float | None = None) -> control.StateSpace:
     """Jacobian linearisation (Eq. 16–17) at position ``x`` [m] (default 3.2 mm) and current ``i``
     [A] (default: the equilibrium current; the paper's Section 4 uses 0.5612 A)."""
     x = PAPER_OPERATING_POINT[0] if x is None else x
-    i = equilibrium_current(p, x) if i is None else i
-    gap = p.x_0 - x
-    dfdx = 2 * p.k_c * i**2 / gap**3           # ∂F/∂x [N/m]
-    dfdi = 2 * p.k_c * i / gap**2              # ∂F/∂i [N/A]
-    c_y = p.k_AD * (p.k_x + p.k_x2 * (2 * x - p.x_cal))
+    pt = formulas.point(p, x, i)
+    dfdx, dfdi, c_y = pt.dF_dx, pt.dF_di, pt.dy_dx     # Eq. 16, 17 and the sensor's slope
     kin = p.k_i * p.k_DA                        # [A/MU]
     lag_f = p.T_F > 0
     if p.T_a > 0:

@@ -1,0 +1,81 @@
+"""The plant's formulas besides the simulation, computed by the C plant so that they live once.
+
+The equilibrium current (Eq. 8 at rest), the D/A input giving a current (Eq. 1, 5), the sensor
+reading (Eq. 12, 13) and its inverse, and the force and sensor slopes of the linearisation
+(Eq. 16, 17) are functions of ``c/maglev_plant.c``; this module calls them through the cffi
+fast path. The independent cross-checks (``reference.py``, the rig emulator ``rig.py``) keep
+their own code on purpose.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import fast
+
+if TYPE_CHECKING:
+    from .params import PlantParams
+
+
+@dataclass(frozen=True)
+class Point:
+    """The plant at position ``x`` [m] with current ``i`` [A]: ``u`` the D/A input giving ``i``
+    [MU], ``y`` the noise-free reading [MU] (both before the converters' limits), ``F`` the static
+    force [N], ``dF_dx`` [N/m], ``dF_di`` [N/A] (Eq. 16, 17) and ``dy_dx`` the reading's slope [MU/m]."""
+
+    x: float
+    i: float
+    u: float
+    y: float
+    F: float
+    dF_dx: float
+    dF_di: float
+    dy_dx: float
+
+
+def _values(params: PlantParams | Mapping[str, float] | None) -> dict[str, float] | None:
+    if params is None or isinstance(params, Mapping):
+        return None if params is None else dict(params)
+    return params.to_start_values()
+
+
+def _call(fn_name: str, params, *args):
+    m = fast._lib()
+    pv = fast._param_vector(_values(params))
+    msg = m.ffi.new("char[256]")
+    rc = getattr(m.lib, fn_name)(m.ffi.cast("double *", m.ffi.from_buffer(pv)), *args, msg, 256)
+    if rc != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+
+
+def point(params: PlantParams | Mapping[str, float] | None, x: float, i: float | None = None) -> Point:
+    """The plant's formulas at ``x`` [m] and current ``i`` [A] (default: the equilibrium current,
+    Eq. 8 at rest). ``params``: a :class:`PlantParams` or FMU parameter values over the C defaults."""
+    m = fast._lib()
+    out = m.ffi.new("MaglevPoint *")
+    _call("maglev_replay_point", params, float(x), math.nan if i is None else float(i), out)
+    return Point(*(float(getattr(out, f)) for f in Point.__dataclass_fields__))
+
+
+def positions(params: PlantParams | Mapping[str, float] | None, y, t: float = 0.0) -> np.ndarray:
+    """Positions [m] between the stops where the model reads ``y`` [MU] at time ``t`` [s] (Eq. 12,
+    13 inverted, ``k_x2`` and the pickup included); readings beyond the travel give the nearest stop."""
+    m = fast._lib()
+    y = np.ascontiguousarray(np.atleast_1d(np.asarray(y, dtype=float)))
+    x = np.empty_like(y)
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    _call("maglev_replay_positions", params, ptr(y), len(y), float(t), ptr(x))
+    return x
+
+
+def position(params: PlantParams | Mapping[str, float] | None, y: float, t: float = 0.0) -> float:
+    """:func:`positions` for one reading."""
+    return float(positions(params, [y], t)[0])
+
+
+__all__ = ["Point", "point", "position", "positions"]
