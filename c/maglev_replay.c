@@ -93,20 +93,64 @@ static void sample(const MaglevPlant *m, size_t k, double *y, double *x, double 
     if (i) i[k] = maglev_get(m, VR_i);
 }
 
+typedef struct { double integral, e_prev, d_prev; } PidState;
+
+static int pid_check(const MaglevPid *pid, double u_hold, char *msg, size_t len) {
+    if (!pid || !(pid->ts > 0) || !isfinite(pid->ts) || !isfinite(pid->kp) || !isfinite(pid->ki) ||
+        !isfinite(pid->kd) || !isfinite(pid->u_min) || !isfinite(pid->u_max) || !(pid->u_min < pid->u_max) ||
+        !(pid->tf >= 0) || !isfinite(pid->tf) || pid->anti_windup < 0 || pid->anti_windup > 2) {
+        snprintf(msg, len, "invalid PID settings (ts > 0, finite gains and limits, u_min < u_max, tf >= 0, "
+                 "anti_windup 0, 1 or 2)");
+        return -1;
+    }
+    if (!isfinite(u_hold)) {
+        snprintf(msg, len, "initial input u_hold %g is not finite", u_hold);
+        return -1;
+    }
+    return 0;
+}
+
+/* One sample of the PID (maglev_replay.h), the one difference equation of the C side. */
+static double pid_step(const MaglevPid *pid, PidState *s, double w, double y) {
+    double e = w - y;
+    double integ = s->integral + pid->ki * pid->ts * e;
+    double d = pid->tf > 0 ? (pid->tf * s->d_prev + pid->kd * (e - s->e_prev)) / (pid->tf + pid->ts)
+                           : pid->kd * (e - s->e_prev) / pid->ts;
+    double raw = pid->kp * e + integ + d;
+    double uk = raw < pid->u_min ? pid->u_min : (raw > pid->u_max ? pid->u_max : raw);
+    if (pid->anti_windup == 1 && uk != raw && (raw - uk) * e > 0) integ = s->integral;
+    if (pid->anti_windup == 2) integ = integ < pid->u_min ? pid->u_min : (integ > pid->u_max ? pid->u_max : integ);
+    s->integral = integ;
+    s->e_prev = e;
+    s->d_prev = d;
+    return uk;
+}
+
+int maglev_replay_pid(const MaglevPid *pid, const double *w, const double *y, size_t n, double u_hold, double *u,
+                      char *msg, size_t len) {
+    if (pid_check(pid, u_hold, msg, len)) return -1;
+    PidState s = {u_hold, 0.0, 0.0};
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(w[k]) || !isfinite(y[k])) {
+            snprintf(msg, len, "w[%zu] = %g or y[%zu] = %g is not finite", k, w[k], k, y[k]);
+            return -1;
+        }
+        u[k] = pid_step(pid, &s, w[k], y[k]);
+    }
+    return 0;
+}
+
 int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const double *w, size_t n,
                               double u_hold, double *u, double *y, double *x, double *v, double *i,
                               char *msg, size_t len) {
     MaglevPlant m;
-    if (!pid || !(pid->ts > 0) || !isfinite(pid->ts) || !isfinite(pid->kp) || !isfinite(pid->ki) ||
-        !isfinite(pid->kd) || !(pid->u_min < pid->u_max) || !(pid->tf >= 0)) {
-        snprintf(msg, len, "invalid PID settings (ts > 0, finite gains, u_min < u_max, tf >= 0)");
-        return -1;
-    }
+    if (pid_check(pid, u_hold, msg, len)) return -1;
     if (setup(&m, params, u_hold, msg, len)) {
         maglev_release(&m, &maglev_std_allocator);
         return -1;
     }
-    double integral = u_hold, e_prev = 0.0, d_prev = 0.0, t = 0.0;
+    PidState ps = {u_hold, 0.0, 0.0};
+    double t = 0.0;
     int rc = 0;
     for (size_t k = 0; k < n; k++) {
         if (!isfinite(w[k])) {
@@ -116,16 +160,7 @@ int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const 
         }
         double yk;
         sample(&m, k, y, x, v, i, &yk);
-        double e = w[k] - yk;
-        double integ = integral + pid->ki * pid->ts * e;
-        double d = pid->tf > 0 ? (pid->tf * d_prev + pid->kd * (e - e_prev)) / (pid->tf + pid->ts)
-                               : pid->kd * (e - e_prev) / pid->ts;
-        double raw = pid->kp * e + integ + d;
-        double uk = raw < pid->u_min ? pid->u_min : (raw > pid->u_max ? pid->u_max : raw);
-        if (pid->anti_windup && uk != raw && (raw - uk) * e > 0) integ = integral;
-        integral = integ;
-        e_prev = e;
-        d_prev = d;
+        double uk = pid_step(pid, &ps, w[k], yk);
         if (u) u[k] = uk;
         /* the FMU's clock: the master adds ts to the previous communication point */
         m.time = t;

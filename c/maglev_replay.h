@@ -5,11 +5,21 @@
 
 #include <stddef.h>
 
+/* The paper's PID (Eq. 24/25) with the usual extensions: e = w - y,
+ *   I[k] = I[k-1] + ki*ts*e[k]
+ *   D[k] = kd*(e[k] - e[k-1])/ts, or with a filter (tf*D[k-1] + kd*(e[k] - e[k-1]))/(tf + ts)
+ *   u[k] = clip(kp*e[k] + I[k] + D[k], u_min, u_max)
+ * Anti-windup: 1 conditional integration (I is not updated while the output saturates and e
+ * pushes further into the limit), 2 clamping (I is kept within [u_min, u_max]). */
 typedef struct {
     double ts, kp, ki, kd, u_min, u_max;
     double tf;       /* derivative filter time constant [s], 0 = off */
-    int anti_windup; /* conditional integration */
+    int anti_windup; /* 0 none, 1 conditional integration, 2 clamping */
 } MaglevPid;
+
+/* The PID alone over given w and y (n samples), settled before: I = u_hold, e[-1] = 0, D = 0. */
+int maglev_replay_pid(const MaglevPid *pid, const double *w, const double *y, size_t n, double u_hold,
+                      double *u, char *msg, size_t msglen);
 
 /* params: MAGLEV_NPARAMS values in value-reference order from VR_k_DA.
  * At t_k: y[k] is read, u[k] = PID(w[k], y[k]) is held over [t_k, t_k + ts).

@@ -9,16 +9,15 @@ import pytest
 
 from maglev_cosim import fast
 from maglev_cosim.analysis import discrete_closed_loop
-from maglev_cosim.cosim import reference_signal, simulate_closed_loop
 from maglev_cosim.linear import operating_point
-from maglev_cosim.params import get_params
-from maglev_cosim.reference import simulate_closed_loop_reference
+from maglev_cosim.loop import LoopResponse, reference_signal, simulate
+from maglev_cosim.params import PlantParams, get_params
 
 X = 0.0032
 
 
-def step_w(p, amplitude: float, n: int = 2000) -> np.ndarray:
-    return reference_signal("step", n, 1e-3, base=operating_point(p, X).y_MU, amplitude=amplitude, t_step=0.0)
+def step_w(p, amplitude: float, duration: float = 2.0) -> np.ndarray:
+    return reference_signal("step", duration, 1e-3, base=operating_point(p, X).y_MU, amplitude=amplitude, t_step=0.0)
 
 
 @pytest.mark.parametrize("name", ["section3", "eq18"])
@@ -26,11 +25,11 @@ def test_fmu_and_pure_python_reference_agree(fmu_path, name):
     """0.05 MU step from 3.2 mm over 2 s. Measured: max |dy| 6.5e-9 MU, |du| 1.5e-8 MU (section3)."""
     p = get_params(name)
     w = step_w(p, 0.05)
-    a = simulate_closed_loop(w, params=p, fmu=fmu_path)
-    b = simulate_closed_loop_reference(p, w)
-    assert np.max(np.abs(a.y - b["y"])) <= 1e-6
-    assert np.max(np.abs(a.u - b["u"])) <= 1e-5
-    assert a.y.max() > operating_point(p, X).y_MU + 0.05   # it moved (overshoot), not two constants
+    a = simulate(p, w, backend="fmu", fmu=fmu_path)
+    b = simulate(p, w, backend="reference")
+    assert np.max(np.abs(a["y"] - b["y"])) <= 1e-6
+    assert np.max(np.abs(a["u"] - b["u"])) <= 1e-5
+    assert a["y"].max() > operating_point(p, X).y_MU + 0.05   # it moved (overshoot), not two constants
 
 
 def test_small_step_agrees_with_the_linear_discrete_loop(fmu_path):
@@ -39,22 +38,57 @@ def test_small_step_agrees_with_the_linear_discrete_loop(fmu_path):
     p = get_params("section3")
     amp = 0.002
     w = step_w(p, amp)
-    res = simulate_closed_loop(w, params=p, fmu=fmu_path)
+    res = simulate(p, w, backend="fmu", fmu=fmu_path)
     T = discrete_closed_loop(p, X)
     lin = control.forced_response(T, T=res.t, U=np.full(len(w), amp)).outputs
-    dev = np.max(np.abs((res.y - res.y[0]) - lin))
+    dev = np.max(np.abs((res["y"] - res["y"][0]) - lin))
     assert dev <= 0.03 * amp, dev
 
 
 def test_fast_path_matches_the_fmu_to_1e12(fmu_path):
     p = get_params("section3")
-    op = operating_point(p, X)
     w = step_w(p, 0.05)
-    a = simulate_closed_loop(w, params=p, fmu=fmu_path)
-    b = fast.closed_loop(p.replace(x_start=X, i_start=op.i).to_start_values(), w, u_hold=op.u_MU)
-    assert np.max(np.abs(a.y - b["y"])) <= 1e-12
-    assert np.max(np.abs(a.u - b["u"])) <= 1e-12
-    assert np.max(np.abs(a.x - b["x"])) <= 1e-15
+    a = simulate(p, w, backend="fmu", fmu=fmu_path)
+    b = simulate(p, w, backend="fast")
+    assert np.max(np.abs(a["y"] - b["y"])) <= 1e-12
+    assert np.max(np.abs(a["u"] - b["u"])) <= 1e-12
+    assert np.max(np.abs(a["x"] - b["x"])) <= 1e-15
+    # the low level takes a PlantParams as readily as a mapping
+    op = operating_point(p, X)
+    c = fast.closed_loop(p.replace(x_start=X, i_start=op.i), w, u_hold=op.u_MU)
+    assert np.array_equal(c["y"], b["y"])
+
+
+def test_one_response_type_with_named_signals():
+    p = get_params("section3")
+    w = step_w(p, 0.05, duration=0.5)
+    r = simulate(p, w)
+    assert isinstance(r, LoopResponse) and isinstance(r, control.TimeResponseData)
+    assert r.output_labels == ["y", "u"] and r.state_labels == ["x", "v", "i"] and r.input_labels == ["w"]
+    assert np.array_equal(r.outputs[0], r["y"]) and np.array_equal(r.states[2], r["i"])
+    assert np.array_equal(r["w"], w) and np.array_equal(r.inputs[0], w)
+    assert np.array_equal(r.outputs["u"], r["u"]) and np.array_equal(r.states["x"], r["x"])  # python-control's names
+    assert r["t"][1] == pytest.approx(1e-3) and len(r.time) == 500
+    assert r["x"][0] == X and r["y"][-1] > r["y"][0] + 0.04      # settled at 3.2 mm, then followed the step
+    t, y = r                                                      # python-control's legacy unpacking still works
+    assert np.array_equal(y, r.outputs)
+    with pytest.raises(KeyError, match="no signal 'q'"):
+        r["q"]
+    df = r.to_pandas() if _has_pandas() else None
+    assert df is None or list(df.columns[:3]) == ["time", "w", "y"]
+    with pytest.raises(ValueError, match="unknown backend"):
+        simulate(p, w, backend="simulink")
+    with pytest.raises(ValueError, match="outside the stops"):
+        simulate(p, w, x_op=0.01)
+    assert isinstance(PlantParams(), PlantParams)
+
+
+def _has_pandas() -> bool:
+    try:
+        import pandas  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def test_fast_open_loop_matches_the_fmu(fmu_path):
@@ -87,10 +121,10 @@ def test_closed_loop_result_writes_a_record(tmp_path, fmu_path):
     from maglev_cosim.record import read_record
 
     p = get_params("section3")
-    res = simulate_closed_loop(reference_signal("square", 2500, 1e-3, base=0.4, amplitude=0.03, period=1.0),
-                               params=p, fmu=fmu_path)
+    res = simulate(p, reference_signal("square", 2.5, 1e-3, base=0.4, amplitude=0.03, period=1.0),
+                   backend="fmu", fmu=fmu_path)
     rec = read_record(res.to_csv(tmp_path / "r.csv"))
-    assert rec.n == 2500 and np.allclose(rec.y, res.y, atol=1e-12)
+    assert rec.n == 2500 and np.allclose(rec.y, res["y"], atol=1e-12)
     assert {"x", "v", "i"} <= set(rec.extra)
 
 
@@ -106,10 +140,10 @@ def test_each_effect_agrees_between_the_c_plant_and_the_reference(fmu_path, effe
     """The catalogue's effects, written twice (C and Python), agree in closed loop: 1 s with a
     0.05 MU step. The baseline is Section 3 with T_a = 0 (Eq. 5), as in the diagnosis."""
     p = get_params("baseline").replace(**effect)
-    w = step_w(p, 0.05, n=1000)
-    a = simulate_closed_loop(w, params=p, fmu=fmu_path)
-    b = simulate_closed_loop_reference(p, w)
-    base = simulate_closed_loop(w, params=get_params("baseline"), fmu=fmu_path)
-    assert np.max(np.abs(a.y - base.y)) > 1e-4          # the effect acts
-    assert np.max(np.abs(a.y - b["y"])) <= 1e-6
-    assert np.max(np.abs(a.u - b["u"])) <= 1e-5
+    w = step_w(p, 0.05, duration=1.0)
+    a = simulate(p, w, backend="fmu", fmu=fmu_path)
+    b = simulate(p, w, backend="reference")
+    base = simulate("baseline", w, backend="fmu", fmu=fmu_path)
+    assert np.max(np.abs(a["y"] - base["y"])) > 1e-4          # the effect acts
+    assert np.max(np.abs(a["y"] - b["y"])) <= 1e-6
+    assert np.max(np.abs(a["u"] - b["u"])) <= 1e-5

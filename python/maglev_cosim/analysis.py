@@ -15,7 +15,7 @@ import numpy as np
 
 from .linear import linearize
 from .params import PlantParams
-from .pid import PIDConfig, pid_continuous_tf, pid_tf
+from .pid import PID, pid_continuous_tf, pid_tf
 
 
 def discrete_plant(p: PlantParams, x_op: float, ts: float, i: float | None = None) -> control.TransferFunction:
@@ -23,10 +23,10 @@ def discrete_plant(p: PlantParams, x_op: float, ts: float, i: float | None = Non
     return control.ss2tf(control.sample_system(linearize(p, x_op, i), ts, method="zoh"))
 
 
-def discrete_closed_loop(p: PlantParams, x_op: float = 0.0032, cfg: PIDConfig | None = None,
+def discrete_closed_loop(p: PlantParams, x_op: float = 0.0032, cfg: PID | None = None,
                          i: float | None = None) -> control.TransferFunction:
     """Reference-to-position closed loop ``C(z)G(z)/(1 + C(z)G(z))`` [MU/MU]."""
-    cfg = cfg or PIDConfig()
+    cfg = cfg or PID()
     return control.feedback(pid_tf(cfg) * discrete_plant(p, x_op, cfg.ts, i), 1)
 
 
@@ -46,11 +46,11 @@ def bandwidth_hz(sys: control.TransferFunction, *, db: float = -3.0) -> float:
     return float(f[min(k + 1, len(f) - 1)])
 
 
-def closed_loop_report(p: PlantParams, x_op: float = 0.0032, cfg: PIDConfig | None = None,
+def closed_loop_report(p: PlantParams, x_op: float = 0.0032, cfg: PID | None = None,
                        i: float | None = None) -> dict:
     """Closed-loop poles, stability, step_info and bandwidth of the linear discrete loop, with
     the paper's statements beside them (stable loop, bandwidth about 50 Hz, PID zeros −200, −1.5)."""
-    cfg = cfg or PIDConfig()
+    cfg = cfg or PID()
     T = discrete_closed_loop(p, x_op, cfg, i)
     poles = np.asarray(T.poles())
     info = control.step_info(T)
@@ -68,7 +68,7 @@ def closed_loop_report(p: PlantParams, x_op: float = 0.0032, cfg: PIDConfig | No
     }
 
 
-def root_locus_branches(p: PlantParams, x_op: float, cfg: PIDConfig, gains: np.ndarray) -> np.ndarray:
+def root_locus_branches(p: PlantParams, x_op: float, cfg: PID, gains: np.ndarray) -> np.ndarray:
     """Closed-loop poles of ``1 + K·C0(s)·H(s)`` for each ``K``, where ``C0 = C/K_p`` is the PID with
     its gain normalised (zeros fixed at the design's, Eq. 21)."""
     L0 = pid_continuous_tf(1.0, cfg.ki / cfg.kp, cfg.kd / cfg.kp) * control.ss2tf(linearize(p, x_op))
@@ -80,7 +80,7 @@ def root_locus_branches(p: PlantParams, x_op: float, cfg: PIDConfig, gains: np.n
     return np.array([np.sort_complex(np.roots(den + K * num)) for K in gains])
 
 
-def plot_root_locus(p: PlantParams, x_op: float, cfg: PIDConfig, path: str | Path) -> Path:
+def plot_root_locus(p: PlantParams, x_op: float, cfg: PID, path: str | Path) -> Path:
     """Root locus of the continuous design (Fig. 16/17) with the chosen gain K = K_p marked."""
     import matplotlib
 
@@ -111,7 +111,7 @@ def plot_root_locus(p: PlantParams, x_op: float, cfg: PIDConfig, path: str | Pat
     return Path(path)
 
 
-def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PIDConfig, path: str | Path) -> Path:
+def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PID, path: str | Path) -> Path:
     """Closed-loop magnitude of the discrete loop with the −3 dB bandwidth marked (Fig. 18)."""
     import matplotlib
 

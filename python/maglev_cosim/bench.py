@@ -28,25 +28,23 @@ def _best_of(fn, repeat: int) -> float:
 
 def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, diagnose: bool = True,
               json_path: Path | None = None) -> dict:
-    from . import fast
     from .checks import comm_step_study, staircase_input
-    from .cosim import reference_signal, resolve_params, simulate_closed_loop
     from .linear import operating_point
-    from .pid import PIDConfig
-    from .reference import simulate_closed_loop_reference
+    from .loop import reference_signal, simulate
+    from .params import get_params
+    from .pid import PID
 
-    p = resolve_params("section3")
-    pid = PIDConfig()
+    p = get_params("section3")
+    pid = PID()
     n = int(round(record_seconds / pid.ts))
     op = operating_point(p, 0.0032)
-    w = reference_signal("square", n, pid.ts, base=op.y_MU, amplitude=0.05)
-    start = p.replace(x_start=0.0032, i_start=op.i).to_start_values()
-    fast.closed_loop(start, w[:100])          # build/load the extension outside the timing
+    w = reference_signal("square", record_seconds, pid.ts, base=op.y_MU, amplitude=0.05)
+    simulate(p, w[:100])          # build/load the extension outside the timing
 
-    t_fmpy = _best_of(lambda: simulate_closed_loop(w, params=p, x_op=0.0032, pid=pid, fmu=fmu), 3)
-    t_fast = _best_of(lambda: fast.closed_loop(start, w, u_hold=op.u_MU), 5)
+    t_fmpy = _best_of(lambda: simulate(p, w, controller=pid, backend="fmu", fmu=fmu), 3)
+    t_fast = _best_of(lambda: simulate(p, w, controller=pid, backend="fast"), 5)
     n_ref = min(n, 2000)
-    t_ref = _best_of(lambda: simulate_closed_loop_reference(p, w[:n_ref], x_op=0.0032, pid=pid), 1) * n / n_ref
+    t_ref = _best_of(lambda: simulate(p, w[:n_ref], controller=pid, backend="reference"), 1) * n / n_ref
 
     rows = [("fmpy loop (FMU, Python PID)", t_fmpy), ("cffi fast path (C replay)", t_fast),
             ("pure-Python reference (solve_ivp)", t_ref)]

@@ -93,19 +93,19 @@ def cmd_step(a: argparse.Namespace) -> dict:
     import control
     import matplotlib.pyplot as plt
 
-    from .cosim import reference_signal, resolve_params, simulate_closed_loop
     from .linear import operating_point
-    from .pid import PIDConfig
-    from .reference import simulate_closed_loop_reference
+    from .loop import reference_signal, simulate
+    from .params import as_params
+    from .pid import PID
 
     from .fmu import ensure_fmu
 
     from .formulas import point
 
     out = Path(a.out)
-    p = resolve_params(a.params)
+    p = as_params(a.params)
     _check_position(a.position, p)
-    pid = PIDConfig()
+    pid = PID()
     if a.duration is None:   # a step settles in 2 s; a square or sine wave shows two 3 s periods
         a.duration = 2.0 if a.reference == "step" else 6.0
     n = int(round(a.duration / pid.ts))
@@ -118,37 +118,37 @@ def cmd_step(a: argparse.Namespace) -> dict:
             raise CliError(f"--amplitude {a.amplitude:g} MU takes the reference to {level:.4g} MU, outside the "
                            f"readings of the travel [{lo:.4g}, {hi:.4g}] MU from {a.position * 1e3:g} mm")
     fmu = ensure_fmu(a.fmu)
-    w = reference_signal(a.reference, n, pid.ts, base=op.y_MU, amplitude=a.amplitude)
+    w = reference_signal(a.reference, a.duration, pid.ts, base=op.y_MU, amplitude=a.amplitude)
     _progress(f"closed loop on the FMU: {a.reference} of {a.amplitude} MU from x = {a.position * 1e3:.2f} mm, "
               f"{a.duration} s at {1 / pid.ts:.0f} Hz (parameters: {a.params})")
     t0 = time.perf_counter()
-    res = simulate_closed_loop(w, params=p, x_op=a.position, pid=pid, fmu=fmu)
+    res = simulate(p, w, controller=pid, backend="fmu", x_op=a.position, fmu=fmu)
     t_fmu = time.perf_counter() - t0
     _progress("same experiment on the independent pure-Python reference plant")
-    ref = simulate_closed_loop_reference(p, w, x_op=a.position, pid=pid)
-    dy = float(np.max(np.abs(res.y - ref["y"])))
-    du = float(np.max(np.abs(res.u - ref["u"])))
+    ref = simulate(p, w, controller=pid, backend="reference", x_op=a.position)
+    dy = float(np.max(np.abs(res["y"] - ref["y"])))
+    du = float(np.max(np.abs(res["u"] - ref["u"])))
     out.mkdir(parents=True, exist_ok=True)
     res.to_csv(out / "step.csv")
     info = {}
     if a.reference == "step":
-        k0 = int(np.argmax(res.w != res.w[0]))
-        yk = res.y[k0:] - res.y[k0 - 1 if k0 > 0 else 0]
-        si = control.step_info(yk, T=res.t[k0:] - res.t[k0], yfinal=float(res.w[-1] - res.w[0]))
+        k0 = int(np.argmax(res["w"] != res["w"][0]))
+        yk = res["y"][k0:] - res["y"][k0 - 1 if k0 > 0 else 0]
+        si = control.step_info(yk, T=res["t"][k0:] - res["t"][k0], yfinal=float(res["w"][-1] - res["w"][0]))
         info = {k: float(v) for k, v in si.items()}
     fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    ax[0].plot(res.t, res.w, color="0.5", lw=1, label="reference w")
-    ax[0].plot(res.t, res.y, color="tab:blue", lw=1, label="y (FMU)")
-    ax[0].plot(res.t, ref["y"], color="tab:orange", lw=1, ls="--", label="y (Python reference)")
+    ax[0].plot(res["t"], res["w"], color="0.5", lw=1, label="reference w")
+    ax[0].plot(res["t"], res["y"], color="tab:blue", lw=1, label="y (FMU)")
+    ax[0].plot(res["t"], ref["y"], color="tab:orange", lw=1, ls="--", label="y (Python reference)")
     ax[0].set_ylabel("position y [MU]")
     ax2 = ax[0].twinx()
-    ax2.plot(res.t, res.x * 1e3, alpha=0)
+    ax2.plot(res["t"], res["x"] * 1e3, alpha=0)
     ax2.set_ylabel("x [mm]")
     lo, hi = ax[0].get_ylim()    # the same axis in mm (Eq. 12, 13 inverted; beyond the stops: linear)
     slope, base = op_slope(p, a.position)
     ax2.set_ylim((lo - base) / slope * 1e3 + a.position * 1e3, (hi - base) / slope * 1e3 + a.position * 1e3)
     ax[0].legend(loc="lower right", fontsize=8)
-    ax[1].plot(res.t, res.u, color="tab:green", lw=1, label="u (controller output)")
+    ax[1].plot(res["t"], res["u"], color="tab:green", lw=1, label="u (controller output)")
     ax[1].set_ylabel("u [MU]")
     ax[1].set_xlabel("t [s]")
     ax[1].legend(loc="upper right", fontsize=8)
@@ -179,11 +179,11 @@ def op_slope(p, x: float) -> tuple[float, float]:
 
 def cmd_linearize(a: argparse.Namespace) -> dict:
     from .analysis import closed_loop_report, plot_closed_loop_bode, plot_root_locus
-    from .cosim import resolve_params
     from .linear import linearize, operating_point, transfer_function
-    from .pid import PIDConfig
+    from .params import as_params
+    from .pid import PID
 
-    p = resolve_params(a.params)
+    p = as_params(a.params)
     _check_position(a.position, p)
     op = operating_point(p, a.position)
     i = a.current if a.current is not None else op.i
@@ -200,7 +200,7 @@ def cmd_linearize(a: argparse.Namespace) -> dict:
     print("poles:", poles)
     print("zeros:", zeros)
     print("H(s) =", tf)
-    cfg = PIDConfig()
+    cfg = PID()
     cl = closed_loop_report(p, a.position, cfg)
     print("closed loop with the discrete PID: " + ", ".join(
         f"{k} {_short(v)}" for k, v in cl.items() if not isinstance(v, (dict, list, tuple, np.ndarray))))

@@ -13,8 +13,13 @@ import re
 import sys
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .params import PlantParams
+    from .pid import PID
 
 REPO = Path(__file__).resolve().parents[2]
 CDIR = REPO / "c"
@@ -102,24 +107,30 @@ def param_table() -> dict[str, tuple[float, float, float, str]]:
 
 def default_params() -> dict[str, float]:
     """The C defaults (the FMU's start values, Section 3)."""
-    m = _lib()
-    return {n: float(m.lib.maglev_replay_param_default(k)) for k, n in enumerate(param_names())}
+    return dict(_defaults())
 
 
-_names_cache: list[str] | None = None
+_default_cache: dict[str, float] | None = None
+
+
+def _defaults() -> dict[str, float]:
+    """The C defaults, read once (every replay needs them)."""
+    global _default_cache
+    if _default_cache is None:
+        m = _lib()
+        _default_cache = {n: float(m.lib.maglev_replay_param_default(k)) for k, n in enumerate(param_names())}
+    return _default_cache
 
 
 def _param_vector(params: Mapping[str, float] | None) -> np.ndarray:
-    global _names_cache
-    if _names_cache is None:
-        _names_cache = param_names()
-    defaults = default_params()
+    """The values in C order (over the defaults), checked by the C rules."""
+    defaults = _defaults()
     if params:
         unknown = sorted(set(params) - set(defaults))
         if unknown:
             raise ValueError(f"unknown parameter(s): {', '.join(unknown)}")
-        defaults.update({k: float(v) for k, v in params.items()})
-    vec = np.array([defaults[n] for n in _names_cache], dtype=float)
+        defaults = {**defaults, **{k: float(v) for k, v in params.items()}}
+    vec = np.fromiter(defaults.values(), dtype=float, count=len(defaults))
     m = _lib()
     msg = m.ffi.new("char[256]")
     if m.lib.maglev_replay_check_params(m.ffi.cast("double *", m.ffi.from_buffer(vec)), msg, 256) != 0:
@@ -140,36 +151,58 @@ def equilibrium_input(p: Mapping[str, float]) -> float:
     return point(p, p["x_start"]).u
 
 
-def closed_loop(params: Mapping[str, float] | None, w: np.ndarray, *, ts: float = 1e-3, kp: float = 2.0,
-                ki: float = 2.97, kd: float = 0.01, u_min: float = 0.0, u_max: float = 1.0, tf: float = 0.0,
-                anti_windup: bool = False, u_hold: float | None = None) -> dict[str, np.ndarray]:
-    """The closed loop (plant + the paper's PID, Eq. 24/25) over reference ``w`` [MU] in one C call.
+def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray, *, pid: PID | None = None,
+                u_hold: float | None = None) -> dict[str, np.ndarray]:
+    """The closed loop (plant + PID, Eq. 24/25) over reference ``w`` [MU] in one C call: the low
+    level of :func:`maglev_cosim.loop.simulate` (``backend="fast"``), which most callers want.
 
-    ``params``: FMU parameter values overriding the C defaults. ``u_hold`` [MU]: the settled
-    input before t = 0 (default: the equilibrium input at ``x_start``). Returns arrays
-    ``t`` [s], ``w``, ``u``, ``y`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A]."""
+    ``params``: a :class:`PlantParams` or FMU parameter values over the C defaults, the start
+    state included. ``pid``: the controller (default: the paper's). ``u_hold`` [MU]: the settled
+    input before t = 0 (default: the equilibrium input at ``x_start``). Returns arrays ``t`` [s],
+    ``w``, ``u``, ``y`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A]."""
+    from .pid import PID
+
     m = _lib()
-    pv = _param_vector(params)
+    pv = _param_vector(_as_mapping(params))
+    pid = pid or PID()
     w = np.ascontiguousarray(w, dtype=float)
     n = len(w)
     if u_hold is None:
-        u_hold = equilibrium_input(dict(zip(_names_cache, pv)))
+        u_hold = equilibrium_input(dict(zip(_defaults(), pv)))
     out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
-    pid = m.ffi.new("MaglevPid *", {"ts": ts, "kp": kp, "ki": ki, "kd": kd, "u_min": u_min, "u_max": u_max,
-                                    "tf": tf, "anti_windup": int(bool(anti_windup))})
+    cpid = m.ffi.new("MaglevPid *", pid.c_settings())
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    rc = m.lib.maglev_replay_closed_loop(ptr(pv), pid, ptr(w), n, float(u_hold), *(ptr(out[k]) for k in
+    rc = m.lib.maglev_replay_closed_loop(ptr(pv), cpid, ptr(w), n, float(u_hold), *(ptr(out[k]) for k in
                                          ("u", "y", "x", "v", "i")), msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
-    return {"t": np.arange(n) * ts, "w": w, **out}
+    return {"t": np.arange(n) * pid.ts, "w": w, **out}
 
 
-def open_loop(params: Mapping[str, float] | None, u: np.ndarray, *, ts: float = 1e-3) -> dict[str, np.ndarray]:
+def pid_only(pid: PID, w: np.ndarray, y: np.ndarray, u_hold: float) -> np.ndarray:
+    """The C PID alone over given ``w`` and ``y`` [MU], settled at ``u_hold`` [MU]: its outputs [MU]."""
+    m = _lib()
+    w = np.ascontiguousarray(w, dtype=float)
+    y = np.ascontiguousarray(y, dtype=float)
+    u = np.empty(len(w))
+    msg = m.ffi.new("char[256]")
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    if m.lib.maglev_replay_pid(m.ffi.new("MaglevPid *", pid.c_settings()), ptr(w), ptr(y), len(w), float(u_hold),
+                               ptr(u), msg, 256) != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return u
+
+
+def _as_mapping(params) -> Mapping[str, float] | None:
+    return params.to_start_values() if hasattr(params, "to_start_values") else params
+
+
+def open_loop(params: PlantParams | Mapping[str, float] | None, u: np.ndarray, *,
+              ts: float = 1e-3) -> dict[str, np.ndarray]:
     """The plant driven by input ``u`` [MU] (``u[0]`` also before t = 0); ``y[k]`` read at ``t_k``."""
     m = _lib()
-    pv = _param_vector(params)
+    pv = _param_vector(_as_mapping(params))
     u = np.ascontiguousarray(u, dtype=float)
     n = len(u)
     out = {k: np.empty(n) for k in ("y", "x", "v", "i")}

@@ -10,6 +10,7 @@ Named sets (:data:`PARAMETER_SETS`):
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 
 
@@ -87,6 +88,18 @@ PARAMETER_SETS: dict[str, PlantParams] = {
     "eq18": _SECTION3.replace(T_a=3e-3, k_FV=2.4 * _SECTION3.m_k),
     "baseline": _SECTION3.replace(T_a=0.0),
 }
+
+
+def as_params(params: PlantParams | str | Mapping[str, float] | None) -> PlantParams:
+    """A :class:`PlantParams` from itself, a set name, or FMU parameter values [SI units] over the
+    Section 3 set (``None``: the Section 3 set)."""
+    if params is None:
+        return PARAMETER_SETS["section3"]
+    if isinstance(params, PlantParams):
+        return params
+    if isinstance(params, str):
+        return get_params(params)
+    return PARAMETER_SETS["section3"].replace(**dict(params))
 
 
 def get_params(name: str) -> PlantParams:

@@ -12,16 +12,38 @@ i.e. ``e[k] = w[k] − y[k]``, ``I[k] = I[k−1] + K_i·T_s·e[k]``,
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import control
 
+ANTI_WINDUP = ("none", "conditional", "clamping")
+
 
 @dataclass(frozen=True)
-class PIDConfig:
-    """Controller settings: sample time ``ts`` [s], gains (``ki`` [1/s], ``kd`` [s]), output limits
-    [MU] (default [0, 1]: the rig's output stays between 0 and 4.5 V in Fig. 21), conditional
-    integration anti-windup and a derivative filter time constant ``tf`` [s] (both off by default)."""
+class PID:
+    """The paper's discrete PID (Eq. 24/25), with the usual extensions of real rigs.
+
+    Parameters
+    ----------
+    ts : float
+        Sample time [s] (Sec. 4.6: 1 ms).
+    kp, ki, kd : float
+        Gains: ``kp`` [MU/MU], ``ki`` [1/s], ``kd`` [s] (Eq. 22: 2, 2.97, 0.01).
+    u_min, u_max : float
+        Output limits [MU] (default [0, 1]: the rig's output stays between 0 and 4.5 V in Fig. 21).
+    tf : float
+        Derivative filter time constant [s] (0: the paper's unfiltered difference).
+    anti_windup : {"none", "conditional", "clamping"}
+        ``conditional``: the integrator holds while the output saturates and the error pushes
+        further into the limit; ``clamping``: the integrator stays within [u_min, u_max].
+
+    Examples
+    --------
+    >>> pid = PID()
+    >>> state = pid.start(u_hold=0.37)      # settled: zero error gives the holding input
+    >>> round(state.step(w=0.40, y=0.39), 6)   # 0.37 + kp*e + ki*ts*e + kd*e/ts with e = 0.01
+    0.49003
+    """
 
     ts: float = 1e-3
     kp: float = 2.0
@@ -29,16 +51,44 @@ class PIDConfig:
     kd: float = 0.01
     u_min: float = 0.0
     u_max: float = 1.0
-    anti_windup: bool = False
     tf: float = 0.0
+    anti_windup: str = "none"
+
+    def __post_init__(self) -> None:
+        vals = (self.ts, self.kp, self.ki, self.kd, self.u_min, self.u_max, self.tf)
+        if not all(isinstance(v, (int, float)) and v == v and abs(v) != float("inf") for v in vals):
+            raise ValueError(f"PID: every setting must be a finite number, got {self}")
+        if self.ts <= 0 or self.tf < 0 or not self.u_min < self.u_max:
+            raise ValueError(f"PID: needs ts > 0 s, tf >= 0 s and u_min < u_max, got ts = {self.ts}, "
+                             f"tf = {self.tf}, limits [{self.u_min}, {self.u_max}] MU")
+        if self.anti_windup not in ANTI_WINDUP:
+            raise ValueError(f"PID: anti_windup must be one of {', '.join(ANTI_WINDUP)}, got {self.anti_windup!r}")
+
+    def replace(self, **changes) -> PID:
+        """A copy with some settings changed."""
+        return replace(self, **changes)
+
+    def start(self, u_hold: float = 0.0) -> DiscretePID:
+        """A running controller, settled: integrator at ``u_hold`` [MU], previous error 0."""
+        return DiscretePID(self, u_hold)
+
+    def c_settings(self) -> dict[str, float | int]:
+        """The settings as the C replay's ``MaglevPid`` holds them."""
+        return {"ts": self.ts, "kp": self.kp, "ki": self.ki, "kd": self.kd, "u_min": self.u_min,
+                "u_max": self.u_max, "tf": self.tf, "anti_windup": ANTI_WINDUP.index(self.anti_windup)}
+
+    def tf_discrete(self) -> control.TransferFunction:
+        """Eq. 25 from e to u (no limits, no filter): see :func:`pid_tf`."""
+        return pid_tf(self)
 
 
 class DiscretePID:
-    """The PID of Eq. 24/25 as a difference equation; :meth:`step` is one sample."""
+    """A running :class:`PID`: :meth:`step` is one sample of the difference equation. The C replay
+    (``c/maglev_replay.c``) has the same equation; ``tests/test_pid.py`` cross-checks the two."""
 
-    def __init__(self, cfg: PIDConfig | None = None) -> None:
-        self.cfg = cfg or PIDConfig()
-        self.reset(0.0)
+    def __init__(self, cfg: PID | None = None, u_hold: float = 0.0) -> None:
+        self.cfg = cfg or PID()
+        self.reset(u_hold)
 
     def reset(self, u_hold: float, e_prev: float = 0.0) -> None:
         """The loop settled: zero error gives output ``u_hold`` [MU] (integrator preloaded)."""
@@ -57,18 +107,20 @@ class DiscretePID:
             d = c.kd * (e - self.e_prev) / c.ts
         v = c.kp * e + integral + d
         u = c.u_min if v < c.u_min else (c.u_max if v > c.u_max else v)
-        if c.anti_windup and u != v and (v - u) * e > 0:
-            integral = self.integral          # conditional integration: do not wind further
+        if c.anti_windup == "conditional" and u != v and (v - u) * e > 0:
+            integral = self.integral          # do not wind further into the limit
+        elif c.anti_windup == "clamping":
+            integral = c.u_min if integral < c.u_min else (c.u_max if integral > c.u_max else integral)
         self.integral = integral
         self.e_prev = e
         self.d_prev = d
         return u
 
 
-def pid_tf(cfg: PIDConfig | None = None) -> control.TransferFunction:
+def pid_tf(cfg: PID | None = None) -> control.TransferFunction:
     """Eq. 25 as a discrete transfer function (dt = ts), from e to u (no limits):
     ``(K_p·z(z−1) + K_i·T_s·z² + K_d/T_s·(z−1)²) / (z(z−1))``."""
-    c = cfg or PIDConfig()
+    c = cfg or PID()
     num = [c.kp + c.ki * c.ts + c.kd / c.ts, -c.kp - 2 * c.kd / c.ts, c.kd / c.ts]
     return control.tf(num, [1.0, -1.0, 0.0], c.ts)
 

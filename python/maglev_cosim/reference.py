@@ -3,7 +3,8 @@
 Same equations and limits as docs/model.md, written apart from the C plant and integrated by a
 different kind of method: scipy's ``solve_ivp`` (DOP853, tight tolerances) on the full state
 ``[x, v, i, F]`` between input breakpoints, with stop impacts and releases as terminal events.
-Nothing here calls C.
+Nothing here calls C. :func:`maglev_cosim.loop.simulate` runs it in closed loop
+(``backend="reference"``).
 """
 
 from __future__ import annotations
@@ -14,9 +15,7 @@ from bisect import bisect_right
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .linear import operating_point
 from .params import PlantParams
-from .pid import DiscretePID, PIDConfig
 
 RTOL = 1e-12
 ATOL = np.array([1e-16, 1e-14, 1e-14, 1e-14])
@@ -153,32 +152,3 @@ class ReferencePlant:
         yv = p.k_x * x + p.y_0 + p.k_x2 * x * (x - p.x_cal) + p.A_d * math.sin(2 * math.pi * p.f_d * self.time + p.phi_d)
         y = min(max(p.k_AD * yv + p.y_MU0, -1.0), 1.0)
         return {"y": y, "x": float(x), "v": float(v), "i": float(i), "F": float(force)}
-
-
-def equilibrium(p: PlantParams, x: float) -> tuple[float, float]:
-    """Equilibrium current [A] and D/A input [MU] at ``x`` [m]."""
-    op = operating_point(p, x)
-    return op.i, op.u_MU
-
-
-def simulate_closed_loop_reference(p: PlantParams, w: np.ndarray, *, x_op: float = 0.0032,
-                                   pid: PIDConfig | None = None) -> dict[str, np.ndarray]:
-    """The closed loop of :func:`maglev_cosim.cosim.simulate_closed_loop` on the reference plant:
-    settled at rest at ``x_op`` [m], PID (Eq. 24/25) at ``ts``. Returns t, w, u, y, x, v, i."""
-    pid = pid or PIDConfig()
-    op = operating_point(p, x_op)
-    plant = ReferencePlant(p.replace(x_start=x_op, v_start=0.0, i_start=op.i))
-    plant.reset(op.u_MU)
-    ctl = DiscretePID(pid)
-    ctl.reset(op.u_MU)
-    n = len(w)
-    out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
-    for k in range(n):
-        o = plant.outputs()
-        for key in ("y", "x", "v", "i"):
-            out[key][k] = o[key]
-        u = ctl.step(float(w[k]), o["y"])
-        out["u"][k] = u
-        plant.set_input(u)
-        plant.step(pid.ts)
-    return {"t": np.arange(n) * pid.ts, "w": np.asarray(w, float), **out}

@@ -1,0 +1,209 @@
+"""The closed loop, once: plant + controller against a reference, on any of three backends.
+
+:func:`simulate` is the one closed-loop simulator of the toolkit. The loop runs at the
+controller's sample time ``ts``: at ``t_k`` the plant's reading ``y[k]`` is taken, the controller
+computes ``u[k]``, which the D/A holds over ``[t_k, t_k + ts)``. The loop starts settled at rest at
+``x_op``: the equilibrium current (limited to ``i_max``), and the controller's integrator holding
+the equilibrium input.
+
+Backends (``backend=``):
+
+- ``"fast"``: the C plant and the C PID in one call through cffi (``c/maglev_replay.c``);
+- ``"fmu"``: the FMU through fmpy, the controller in Python (what any FMI importer sees);
+- ``"reference"``: the independent pure-Python plant (:mod:`maglev_cosim.reference`).
+
+All three return a :class:`LoopResponse`: python-control's ``TimeResponseData`` with the
+reference ``w`` as input, ``y`` and ``u`` as outputs and ``x``, ``v``, ``i`` as states.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping
+from pathlib import Path
+
+import control
+import numpy as np
+
+from . import formulas
+from .params import PlantParams, as_params
+from .pid import PID
+
+BACKENDS = ("fast", "fmu", "reference")
+REFERENCES = ("step", "square", "sine")
+#: The paper's operating point (Section 4) [m].
+X_OP = 0.0032
+
+
+class LoopResponse(control.TimeResponseData):
+    """A closed-loop time response sampled at ``t_k = k·ts``.
+
+    Signals by name, ``r["w"]`` and so on: input ``w`` reference [MU]; outputs ``y`` A/D reading
+    [MU] and ``u`` controller output held over the next sample [MU]; states ``x`` position [m],
+    ``v`` velocity [m/s], ``i`` coil current [A]; ``t`` [s]. The same arrays are python-control's
+    ``.time``, ``.inputs``, ``.outputs`` and ``.states`` (named too: ``r.outputs["y"]``); ``.y``,
+    ``.x``, ``.u`` keep python-control's meaning (all outputs, all states, all inputs).
+    """
+
+    def __init__(self, t: np.ndarray, w: np.ndarray, u: np.ndarray, y: np.ndarray, x: np.ndarray,
+                 v: np.ndarray, i: np.ndarray, *, params: PlantParams, controller: PID, backend: str,
+                 x_op: float) -> None:
+        super().__init__(np.asarray(t, float), np.vstack([y, u]), states=np.vstack([x, v, i]),
+                         inputs=np.asarray(w, float), output_labels=["y", "u"], state_labels=["x", "v", "i"],
+                         input_labels=["w"], title=f"CE152 closed loop ({backend})", sysname="maglev",
+                         plot_inputs=True)
+        self.params, self.controller, self.backend, self.x_op = params, controller, backend, float(x_op)
+
+    def __getitem__(self, key):
+        """A signal by name: ``r["y"]``, ``r["u"]``, ``r["w"]``, ``r["x"]``, ``r["v"]``, ``r["i"]``,
+        ``r["t"]``; integer indices keep python-control's legacy meaning (``t, y = response``)."""
+        if isinstance(key, str):
+            if key in ("t", "time"):
+                return self.time
+            for labels, data in ((self.output_labels, self.outputs), (self.state_labels, self.states),
+                                 (self.input_labels, np.atleast_2d(self.inputs))):
+                if key in labels:
+                    return data[labels.index(key)]
+            raise KeyError(f"no signal {key!r}: the response has t, w, y, u, x, v, i")
+        return super().__getitem__(key)
+
+    def signals(self) -> dict[str, np.ndarray]:
+        """``t, w, u, y, x, v, i`` by name."""
+        return {k: self[k] for k in ("t", "w", "u", "y", "x", "v", "i")}
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Writes the response in the record format (docs/record-format.md): the controller as
+        ``# key: value`` metadata, then ``t,w,u,y,x,v,i``."""
+        path = Path(path)
+        c, sig = self.controller, self.signals()
+        with path.open("w", newline="") as fh:
+            for k, v in (("ts", c.ts), ("controller", "pid"), ("kp", c.kp), ("ki", c.ki), ("kd", c.kd),
+                         ("u_min", c.u_min), ("u_max", c.u_max)):
+                fh.write(f"# {k}: {v}\n")
+            wr = csv.writer(fh)
+            wr.writerow(["t", "w", "u", "y", "x", "v", "i"])
+            for row in zip(*(sig[k] for k in ("t", "w", "u", "y", "x", "v", "i"))):
+                wr.writerow([f"{row[0]:.6f}", *(f"{v:.17g}" for v in row[1:])])
+        return path
+
+
+def reference_signal(kind: str, duration: float, ts: float = 1e-3, *, base: float, amplitude: float,
+                     t_step: float = 0.1, period: float = 3.0) -> np.ndarray:
+    """A position reference ``w`` [MU] lasting ``duration`` [s], sampled at ``ts`` [s].
+
+    ``step``: ``base`` until ``t_step`` [s], then ``base + amplitude``. ``square``: period
+    ``period`` [s] (3 s, as in Section 5), ``base`` for the first half period, then
+    ``base + amplitude``. ``sine``: ``base + amplitude·sin(2π t / period)``.
+    """
+    n = int(round(duration / ts))
+    if n < 1:
+        raise ValueError(f"duration {duration} s holds no sample at ts = {ts} s")
+    t = np.arange(n) * ts
+    if kind == "step":
+        return np.where(t >= t_step - 1e-12, base + amplitude, base)
+    if kind == "square":
+        phase = np.floor(t / (period / 2) + 1e-9).astype(int) % 2
+        return base + amplitude * phase
+    if kind == "sine":
+        return base + amplitude * np.sin(2 * np.pi * t / period)
+    raise ValueError(f"unknown reference {kind!r}: choose one of {', '.join(REFERENCES)}")
+
+
+def settled_start(p: PlantParams, x_op: float) -> tuple[PlantParams, float]:
+    """The plant at rest at ``x_op`` [m] with the equilibrium current (limited to ``i_max``), and
+    the D/A input [MU] that holds it there."""
+    i = min(formulas.point(p, x_op).i, p.i_max)
+    return p.replace(x_start=x_op, v_start=0.0, i_start=i), formulas.point(p, x_op, i).u
+
+
+def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarray, *,
+             controller: PID | None = None, backend: str = "fast", x_op: float | None = None,
+             fmu: str | Path | None = None) -> LoopResponse:
+    """The closed loop of plant and controller against reference ``w``.
+
+    Parameters
+    ----------
+    params : PlantParams, str, mapping or None
+        The plant: a :class:`PlantParams`, a named set (``"section3"``, ``"eq18"``,
+        ``"baseline"``), or FMU parameter values [SI units] over the Section 3 set.
+    w : array_like
+        Reference [MU], one value per controller sample.
+    controller : PID, optional
+        The controller (default: the paper's PID, Eq. 24/25, at 1 kHz).
+    backend : {"fast", "fmu", "reference"}
+        Which implementation of the plant runs the loop (module docstring).
+    x_op : float, optional
+        Settled start position [m] (default 3.2 mm, the paper's Section 4).
+    fmu : path, optional
+        The FMU for ``backend="fmu"`` (default: the installed or built ``maglev.fmu``).
+
+    Returns
+    -------
+    LoopResponse
+        ``t`` [s], ``w``, ``y``, ``u`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A].
+
+    Examples
+    --------
+    >>> from maglev_cosim.loop import simulate, reference_signal
+    >>> w = reference_signal("step", 1.0, base=0.394, amplitude=0.05)
+    >>> r = simulate("section3", w)
+    >>> round(float(r["y"][-1]), 2)
+    0.44
+    """
+    p = as_params(params)
+    controller = controller or PID()
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}: choose one of {', '.join(BACKENDS)}")
+    w = np.asarray(w, dtype=float)
+    if w.ndim != 1 or len(w) == 0 or not np.all(np.isfinite(w)):
+        raise ValueError("reference w must be a non-empty 1-D array of finite values [MU]")
+    x_op = X_OP if x_op is None else float(x_op)
+    if not p.x_min <= x_op <= p.x_max:
+        raise ValueError(f"x_op = {x_op * 1e3:g} mm lies outside the stops [{p.x_min * 1e3:g}, {p.x_max * 1e3:g}] mm")
+    start, u_hold = settled_start(p, x_op)
+    run = {"fast": _run_fast, "fmu": _run_fmu, "reference": _run_reference}[backend]
+    sig = run(start, controller, w, u_hold, fmu)
+    t = np.arange(len(w)) * controller.ts
+    return LoopResponse(t, w, sig["u"], sig["y"], sig["x"], sig["v"], sig["i"], params=p,
+                        controller=controller, backend=backend, x_op=x_op)
+
+
+def _run_fast(start: PlantParams, c: PID, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
+    from . import fast
+
+    return fast.closed_loop(start, w, pid=c, u_hold=u_hold)
+
+
+def _stepwise(plant_outputs, set_input, step, c: PID, w: np.ndarray, u_hold: float) -> dict[str, np.ndarray]:
+    """The loop with the controller in Python, for the plants stepped from Python."""
+    n = len(w)
+    out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
+    ctl = c.start(u_hold)
+    for k in range(n):
+        yk, out["x"][k], out["v"][k], out["i"][k] = plant_outputs()
+        out["y"][k] = yk
+        uk = ctl.step(w[k], yk)
+        out["u"][k] = uk
+        set_input(uk)
+        step(c.ts)
+    return out
+
+
+def _run_fmu(start: PlantParams, c: PID, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
+    from .fmu import FmuPlant
+
+    with FmuPlant({**start.to_start_values(), "u": u_hold}, fmu=fmu) as plant:
+        return _stepwise(plant.outputs, plant.set_input, plant.step, c, w, u_hold)
+
+
+def _run_reference(start: PlantParams, c: PID, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
+    from .reference import ReferencePlant
+
+    plant = ReferencePlant(start)
+    plant.reset(u_hold)
+
+    def outputs() -> tuple[float, float, float, float]:
+        o = plant.outputs()
+        return o["y"], o["x"], o["v"], o["i"]
+
+    return _stepwise(outputs, plant.set_input, plant.step, c, w, u_hold)
