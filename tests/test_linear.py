@@ -87,3 +87,10 @@ def test_linearisation_matches_finite_differences_of_the_fmu(fmu_path):
     b_expected = (np.eye(3) * h + A * h * h / 2) @ np.asarray(s.B).ravel() / h
     assert np.allclose(b_num, b_expected, rtol=2e-3, atol=1e-3 * np.abs(b_expected).max())
     assert np.all(np.isfinite(z0))
+
+
+def test_state_space_signals_are_named():
+    G = linearize(get_params("eq18"), 0.0032, i=0.5612)
+    assert (G.name, G.state_labels, G.input_labels, G.output_labels) == ("maglev", ["x", "v", "i"], ["u"], ["y"])
+    assert linearize(get_params("baseline").replace(T_F=1e-3)).state_labels == ["x", "v", "F"]
+    assert linearize(get_params("section3").replace(T_F=1e-3)).state_labels == ["x", "v", "i", "F"]

@@ -49,7 +49,14 @@ def operating_point(p: PlantParams, x: float) -> OperatingPoint:
 
 def linearize(p: PlantParams, x: float | None = None, i: float | None = None) -> control.StateSpace:
     """Jacobian linearisation (Eq. 16–17) at position ``x`` [m] (default 3.2 mm) and current ``i``
-    [A] (default: the equilibrium current; the paper's Section 4 uses 0.5612 A)."""
+    [A] (default: the equilibrium current; the paper's Section 4 uses 0.5612 A).
+
+    Returns
+    -------
+    control.StateSpace
+        Named ``maglev``: input ``u`` [MU], output ``y`` [MU], states ``x`` [m], ``v`` [m/s] and,
+        when their lags are on, ``i`` [A] (``T_a > 0``) and ``F`` [N] (``T_F > 0``).
+    """
     x = PAPER_OPERATING_POINT[0] if x is None else x
     pt = formulas.point(p, x, i)
     dfdx, dfdi, c_y = pt.dF_dx, pt.dF_di, pt.dy_dx     # Eq. 16, 17 and the sensor's slope
@@ -87,7 +94,8 @@ def linearize(p: PlantParams, x: float | None = None, i: float | None = None) ->
             B[1, 0] = dfdi * kin / p.m_k
     C = np.zeros((1, n))
     C[0, 0] = c_y
-    return control.ss(A, B, C, np.zeros((1, 1)))
+    states = ["x", "v"] + (["i"] if p.T_a > 0 else []) + (["F"] if lag_f else [])
+    return control.ss(A, B, C, np.zeros((1, 1)), states=states, inputs=["u"], outputs=["y"], name="maglev")
 
 
 def transfer_function(p: PlantParams, x: float | None = None, i: float | None = None) -> control.TransferFunction:
