@@ -112,7 +112,8 @@ def plot_root_locus(p: PlantParams, x_op: float, cfg: PID, path: str | Path) -> 
 
 
 def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PID, path: str | Path) -> Path:
-    """Closed-loop magnitude of the discrete loop with the −3 dB bandwidth marked (Fig. 18)."""
+    """Bode plot of the discrete closed loop, reference to position: magnitude with the −3 dB
+    bandwidth marked (Fig. 18) and phase, up to the Nyquist frequency."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -120,17 +121,21 @@ def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PID, path: str | Pat
 
     T = discrete_closed_loop(p, x_op, cfg)
     f = np.logspace(-1, np.log10(0.5 / cfg.ts * 0.999), 2000)
-    mag = np.abs(T(np.exp(2j * np.pi * f * cfg.ts))).ravel()
+    resp = np.asarray(T(np.exp(2j * np.pi * f * cfg.ts))).ravel()
     bw = bandwidth_hz(T)
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    ax.semilogx(f, 20 * np.log10(mag), color="tab:blue")
-    ax.axhline(-3, color="0.6", ls="--", lw=0.8)
-    ax.axvline(bw, color="tab:red", ls=":", label=f"bandwidth {bw:.1f} Hz (paper: about 50 Hz)")
-    ax.set_xlabel("frequency [Hz]")
-    ax.set_ylabel("|T| [dB]")
-    ax.set_title("Closed loop, reference to position (Fig. 18)")
-    ax.legend(fontsize=8)
-    ax.grid(True, which="both", alpha=0.3)
+    fig, ax = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    ax[0].semilogx(f, 20 * np.log10(np.abs(resp)), color="tab:blue")
+    ax[0].axhline(-3, color="0.6", ls="--", lw=0.8)
+    ax[0].axvline(bw, color="tab:red", ls=":", label=f"bandwidth {bw:.1f} Hz (paper: about 50 Hz)")
+    ax[0].set_ylabel("|T| [dB]")
+    ax[0].set_title("Closed loop, reference to position (Fig. 18)")
+    ax[0].legend(fontsize=8)
+    ax[1].semilogx(f, np.degrees(np.unwrap(np.angle(resp))), color="tab:blue")
+    ax[1].axvline(bw, color="tab:red", ls=":")
+    ax[1].set_ylabel("phase [deg]")
+    ax[1].set_xlabel("frequency [Hz]")
+    for a in ax:
+        a.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
