@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -116,9 +117,12 @@ def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_pa
     for c in d["candidates"]:
         assert {"effect", "parameters", "rms_y", "rms_u", "accepted"} <= set(c)
     report = (out / "report.md").read_text()
-    for png in ("measured_vs_simulated.png", "residual.png", "spectrum.png", "zoom.png"):
+    for png in ("measured_vs_simulated.png", "residual.png", "spectrum.png", "zoom.png", "resid.png"):
         assert png in report and (out / png).stat().st_size > 10000
-    assert "Criterion" in report
+    assert "Criterion" in report and "| T_d | " in report and "| s |" in report   # units in the tables
+    html = (out / "report.html").read_text()
+    assert html.count('src="data:image/png;base64,') == 5 and "<table>" in html
+    assert not re.search(r'src="[^"]*\.png"', html)          # nothing left to fetch beside the page
     fmu = out / "maglev_calibrated.fmu"
     assert validate_fmu(str(fmu)) == []
     from fmpy import read_model_description

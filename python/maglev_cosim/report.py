@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .diagnose import CATALOGUE, CRITERION, Diagnosis, spectrum
+from .diagnose import CATALOGUE, CRITERION, Diagnosis
+from .metrics import nrmse_fit, psd, resid
 from .record import Record
 
 
@@ -45,18 +46,16 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
 
     fig, ax = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
     ax[0].plot(rec.t, rec.w, color="0.6", lw=1, label="reference w")
-    ax[0].plot(rec.t, rec.y, color="k", lw=0.8, label="measured y")
-    ax[0].plot(rec.t, before["y"], color="tab:red", lw=0.9, label="simulated, before")
-    ax[0].plot(rec.t, after["y"], color="tab:blue", lw=0.9, ls="--", label="simulated, after")
-    ax[0].set_ylabel("y [MU]")
-    ax[0].legend(loc="upper right", fontsize=8, ncol=4)
-    ax[1].plot(rec.t, rec.u, color="k", lw=0.6, label="measured u")
-    ax[1].plot(rec.t, before["u"], color="tab:red", lw=0.8, label="simulated, before")
-    ax[1].plot(rec.t, after["u"], color="tab:blue", lw=0.8, ls="--", label="simulated, after")
-    ax[1].set_ylabel("u [MU]")
+    for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
+        ax[k].plot(rec.t, meas, color="k", lw=0.7, label=f"measured {sig}")
+        for sim, color, ls, label in ((before, "tab:red", "-", "before"), (after, "tab:blue", "--", "after")):
+            ax[k].plot(rec.t, sim[sig], color=color, lw=0.85, ls=ls,
+                       label=f"simulated, {label}: fit {nrmse_fit(meas, sim[sig]):.1f} %")
+        ax[k].set_ylabel(f"{sig} [MU]")
+        ax[k].legend(loc="upper right", fontsize=8, ncol=4)
     ax[1].set_xlabel("t [s]")
-    ax[1].legend(loc="upper right", fontsize=8, ncol=3)
-    fig.suptitle("Measured versus simulated closed loop")
+    fig.suptitle("Measured versus simulated closed loop (free run; fit = 100·(1 − ‖y − ŷ‖/‖y − mean y‖), "
+                 "as MATLAB's compare)", fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "measured_vs_simulated.png", dpi=110)
     plt.close(fig)
@@ -98,17 +97,38 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
     fig, ax = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
         for sim, color, label in ((before, "tab:red", "before"), (after, "tab:blue", "after")):
-            f, a = spectrum(meas - sim[sig], rec.ts)
-            ax[k].semilogy(f[1:], a[1:] + 1e-12, color=color, lw=0.7, label=label)
-        ax[k].set_ylabel(f"|{sig} residual| [MU]")
+            f, p = psd(meas - sim[sig], rec.ts)
+            ax[k].loglog(f[1:], p[1:], color=color, lw=0.8, label=label)
+        ax[k].set_ylabel(f"{sig} residual PSD [MU²/Hz]")
         ax[k].legend(loc="upper right", fontsize=8)
+        ax[k].grid(True, which="both", alpha=0.3)
     ax[1].set_xlabel("frequency [Hz]")
-    ax[1].set_xlim(0, 0.5 / rec.ts)
-    fig.suptitle("Amplitude spectrum of the residual")
+    fig.suptitle("Power spectral density of the residual (Welch, 2 s Hann segments)")
     fig.tight_layout()
     fig.savefig(out / "spectrum.png", dpi=110)
     plt.close(fig)
     files.append("spectrum.png")
+
+    # MATLAB resid: is what the final model leaves white, and independent of the reference?
+    fig, ax = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
+    max_lag = int(round(0.05 / rec.ts))
+    for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
+        r = resid(meas - after[sig], rec.w, max_lag=max_lag)
+        for j, (vals, title) in enumerate(((r.auto, f"autocorrelation of the {sig} residual"),
+                                            (r.cross, f"cross-correlation of the {sig} residual with w"))):
+            ax[k, j].vlines(r.lags * rec.ts * 1e3, 0, vals, color="tab:blue", lw=1)
+            ax[k, j].axhspan(-r.band, r.band, color="tab:orange", alpha=0.25,
+                             label=f"{100 * r.confidence:.0f} % band of a white residual")
+            ax[k, j].set_title(title, fontsize=9)
+            ax[k, j].axhline(0, color="0.5", lw=0.6)
+        ax[k, 0].legend(fontsize=7, loc="upper right")
+    for j in range(2):
+        ax[1, j].set_xlabel("lag [ms]")
+    fig.suptitle("Residual analysis of the final model (as MATLAB's resid)")
+    fig.tight_layout()
+    fig.savefig(out / "resid.png", dpi=110)
+    plt.close(fig)
+    files.append("resid.png")
     return files
 
 
@@ -127,6 +147,9 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     if fmu is not None:
         written["fmu"] = calibrated_fmu(fmu, out / "maglev_calibrated.fmu", d.parameters)
 
+    from .fast import param_table
+
+    units = {n: row[3] for n, row in param_table().items()}
     lines = [f"# Diagnosis of `{rec.path}`", ""]
     lines += [f"Record: {rec.n} samples at ts = {rec.ts} s ({rec.duration:.2f} s); PID kp = {rec.kp}, "
               f"ki = {rec.ki}, kd = {rec.kd}, output limits [{rec.u_min}, {rec.u_max}] MU.", ""]
@@ -137,34 +160,41 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     else:
         lines.append("**No effect selected**: after calibration no effect of the catalogue explains the "
                      "residual better than noise does.")
-    lines += ["", "| | rms_y [MU] | rms_u [MU] |", "|---|---|---|",
-              f"| before (calibrated baseline) | {d.before['rms_y']:.6f} | {d.before['rms_u']:.6f} |",
-              f"| after (final model) | {d.after['rms_y']:.6f} | {d.after['rms_u']:.6f} |",
-              f"| noise floor estimate | {d.noise['sigma_y']:.6f} | {d.noise['rms_u_from_sensor_noise']:.6f} |", ""]
-    lines += ["RMS over the whole record of measured minus simulated. The noise floor is estimated from the "
+    fits = {k: (nrmse_fit(rec.y, d.sims[k]["y"]), nrmse_fit(rec.u, d.sims[k]["u"])) for k in ("before", "after")}
+    lines += ["", "| | rms_y [MU] | rms_u [MU] | fit y [%] | fit u [%] |", "|---|---|---|---|---|",
+              f"| before (calibrated baseline) | {d.before['rms_y']:.6f} | {d.before['rms_u']:.6f} "
+              f"| {fits['before'][0]:.1f} | {fits['before'][1]:.1f} |",
+              f"| after (final model) | {d.after['rms_y']:.6f} | {d.after['rms_u']:.6f} "
+              f"| {fits['after'][0]:.1f} | {fits['after'][1]:.1f} |",
+              f"| noise floor estimate | {d.noise['sigma_y']:.6f} | {d.noise['rms_u_from_sensor_noise']:.6f} | | |", ""]
+    lines += ["Fit: free-run NRMSE fit as MATLAB's compare defines it, 100·(1 − ‖y − ŷ‖/‖y − mean y‖). "
+              "RMS over the whole record of measured minus simulated. The noise floor is estimated from the "
               "record itself (white part of the reading from its second differences, and the PID's response "
               "to it); random forces on the ball add to what noise leaves in y.", ""]
     if d.unexplained.get("note"):
         lines += [f"Note: {d.unexplained['note']}.", ""]
     if d.selected:
-        lines += ["### Estimated effect parameters (±1 standard error)", "", "| parameter | value | ± |", "|---|---|---|"]
+        lines += ["### Estimated effect parameters (±1 standard error)", "", "| parameter | value | ± | unit |",
+                  "|---|---|---|---|"]
         for e in d.selected:
             for p in CATALOGUE[e].params:
-                lines.append(f"| {p} | {_fmt(d.parameters[p])} | {_fmt(d.uncertainties.get(p, float('nan')))} |")
+                lines.append(f"| {p} | {_fmt(d.parameters[p])} | {_fmt(d.uncertainties.get(p, float('nan')))} "
+                             f"| {units[p]} |")
         lines.append("")
-    lines += ["### Calibrated baseline parameters", "", "| parameter | value | ± | Section 3 |", "|---|---|---|---|"]
+    lines += ["### Calibrated baseline parameters", "", "| parameter | value | ± | Section 3 | unit |",
+              "|---|---|---|---|---|"]
     from .replay import baseline_params
 
     paper = baseline_params()
     for name in ("k_c", "x_0", "k_FV", "u_0"):
         lines.append(f"| {name} | {_fmt(d.parameters[name])} | {_fmt(d.uncertainties.get(name, float('nan')))} "
-                     f"| {_fmt(paper[name])} |")
+                     f"| {_fmt(paper[name])} | {units[name]} |")
     lines += ["", "The A/D offset y_MU0 is not calibrated: in a regulated loop it shifts the picture exactly "
               "as x_0 does.", ""]
-    lines += ["## Candidates", "", "| round | effect | parameters | rms_y | rms_u | held-out change | LR stat | "
+    lines += ["## Candidates", "", "| round | effect | parameters | rms_y [MU] | rms_u [MU] | held-out cost change | LR stat | "
               "threshold | accepted |", "|---|---|---|---|---|---|---|---|---|"]
     for c in d.candidates:
-        par = ", ".join(f"{k} = {_fmt(v)}" for k, v in c["parameters"].items())
+        par = ", ".join(f"{k} = {_fmt(v)} {units[k]}" for k, v in c["parameters"].items())
         lines.append(f"| {c['round']} | {c['effect']} | {par} | {c['rms_y']:.6f} | {c['rms_u']:.6f} | "
                      f"{-100 * c['held_out_gain']:+.1f} % | {c['lr_statistic']:.1f} | {c['threshold']:.1f} | "
                      f"{'**yes**' if c.get('selected') else ('yes' if c['accepted'] else 'no')} |")
@@ -195,4 +225,32 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     lines += [f"Diagnosis took {d.elapsed:.1f} s. Machine-readable: `diagnosis.json`.", ""]
     (out / "report.md").write_text("\n".join(lines))
     written["report"] = out / "report.md"
+    written["html"] = write_html(out / "report.md", out / "report.html")
     return written
+
+
+def write_html(markdown_path: Path, html_path: Path) -> Path:
+    """A self-contained HTML page from a Markdown report: tables rendered, every PNG it links
+    embedded as a data URI, so that the one file can be mailed or archived."""
+    import base64
+    import re
+
+    import markdown
+
+    folder = markdown_path.parent
+    body = markdown.markdown(markdown_path.read_text(), extensions=["tables"])
+
+    def embed(m: re.Match) -> str:
+        png = folder / m.group(1)
+        if not png.is_file():
+            return m.group(0)
+        return f'src="data:image/png;base64,{base64.b64encode(png.read_bytes()).decode()}"'
+
+    body = re.sub(r'src="([^"]+\.png)"', embed, body)
+    title = markdown_path.read_text().splitlines()[0].lstrip("# ").strip() if markdown_path.stat().st_size else "report"
+    style = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em;line-height:1.45}"
+             "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:.25em .6em;"
+             "text-align:left}th{background:#eee}img{max-width:100%}code{background:#f4f4f4;padding:0 .2em}")
+    html_path.write_text(f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{title}</title>'
+                         f"<style>{style}</style></head><body>\n{body}\n</body></html>\n")
+    return html_path

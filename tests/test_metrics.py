@@ -1,0 +1,40 @@
+"""The System Identification figures: compare's NRMSE fit, resid's correlations and bands."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maglev_cosim.metrics import correlation, nrmse_fit, psd, resid
+
+
+def test_nrmse_fit_matches_matlabs_definition():
+    y = np.sin(np.linspace(0, 10, 500))
+    assert nrmse_fit(y, y) == 100.0
+    assert nrmse_fit(y, np.full_like(y, y.mean())) == pytest.approx(0.0, abs=1e-12)
+    half = y.mean() + 0.5 * (y - y.mean())            # half the deviation: fit 50 %
+    assert nrmse_fit(y, half) == pytest.approx(50.0)
+    assert nrmse_fit(y, -y) < 0                        # worse than the mean
+    assert np.isnan(nrmse_fit(np.ones(10), np.zeros(10)))
+
+
+def test_resid_band_holds_white_noise_and_flags_coloured_noise():
+    rng = np.random.default_rng(0)
+    e = rng.standard_normal(20000)
+    u = rng.standard_normal(20000)
+    r = resid(e, u, max_lag=25, confidence=0.99)
+    assert r.band == pytest.approx(2.5758 / np.sqrt(20000), rel=1e-4)
+    assert r.auto[r.lags == 0][0] == pytest.approx(1.0)
+    assert r.auto_out <= 2 and r.cross_out <= 2        # 1 % of 50 lags expected outside
+    coloured = np.convolve(e, np.ones(5) / 5, mode="same")
+    assert resid(coloured, u).auto_out >= 8            # lags 1..4 both sides
+    leaking = e + 0.3 * np.roll(u, 3)                  # the input 3 samples earlier leaks into the residual
+    lags, c = correlation(leaking, u, 10)
+    assert lags[np.argmax(c)] == 3
+
+
+def test_psd_finds_a_tone():
+    t = np.arange(20000) * 1e-3
+    x = np.sin(2 * np.pi * 50 * t) + 0.01 * np.random.default_rng(1).standard_normal(len(t))
+    f, p = psd(x, 1e-3)
+    assert f[np.argmax(p)] == pytest.approx(50.0, abs=0.5)
