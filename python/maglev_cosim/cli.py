@@ -344,8 +344,29 @@ def cmd_demo(a: argparse.Namespace) -> dict:
                                  seed=a.seed, no_noise=False, param=None))
     d = cmd_diagnose(argparse.Namespace(record=str(rec_path), out=str(out / "diagnosis"), fmu=str(fmu),
                                         effects=None, workers=None))
-    print(f"demo done: see {out}/step, {out}/linearize, {out}/diagnosis/report.md")
+    truth = json.loads(Path(str(rec_path) + ".truth.json").read_text())
+    print(_truth_table(truth, d))
+    print(f"demo done: see {out}/step, {out}/linearize, {out}/diagnosis/report.html (and report.md)")
     return d
+
+
+def _truth_table(truth: dict, d: dict) -> str:
+    """The planted effects of a synthetic record beside what the diagnosis estimated."""
+    from .fast import param_table
+
+    units = {n: row[3] for n, row in param_table().items()}
+    rows = [f"{'effect':<22}{'parameter':<11}{'planted':>12}{'estimated':>12}{'± 1 sigma':>12}  unit"]
+    for name, values in truth["effects"].items():
+        found = name in d["selected"]
+        for k, v in values.items():
+            est = d["parameters"].get(k) if found else None
+            sd = d["uncertainties"].get(k) if found else None
+            rows.append(f"{name:<22}{k:<11}{v:>12.4g}{'not found' if est is None else f'{est:.4g}':>12}"
+                        f"{'' if sd is None else f'{sd:.2g}':>12}  {units.get(k, '')}")
+    extra = [e for e in d["selected"] if e not in truth["effects"]]
+    if extra:
+        rows.append(f"selected but not planted: {', '.join(extra)}")
+    return "planted truth (from the .truth.json sidecar) against the diagnosis:\n" + "\n".join(rows)
 
 
 # ----------------------------------------------------------------------------- main
