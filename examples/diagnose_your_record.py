@@ -3,7 +3,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from maglev_cosim.diagnose import diagnose
+from maglev_cosim.diagnosis import diagnose
 from maglev_cosim.record import read_record
 from maglev_cosim.synth import synth_record
 

@@ -15,7 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from maglev_cosim.diagnose import CATALOGUE, diagnose
+from maglev_cosim.diagnosis import CATALOGUE, diagnose
 from maglev_cosim.record import read_record
 from maglev_cosim.synth import synth_record
 

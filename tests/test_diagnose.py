@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from maglev_cosim.diagnose import CATALOGUE, diagnose
+from maglev_cosim.diagnosis import CATALOGUE, diagnose
 from maglev_cosim.record import read_record
 from maglev_cosim.replay import replay
 from maglev_cosim.rig import RigConfig, reference, simulate_rig

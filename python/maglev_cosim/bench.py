@@ -73,7 +73,7 @@ def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, di
               "comm_step": {k: {f"{h:g}": v for h, v in r.items()} for k, r in study.items()}}
 
     if diagnose:
-        from .diagnose import diagnose as run_diagnosis
+        from .diagnosis import diagnose as run_diagnosis
         from .record import read_record
         from .synth import synth_record
 

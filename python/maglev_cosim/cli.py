@@ -263,7 +263,7 @@ def _load(path: str):
 
 
 def cmd_diagnose(a: argparse.Namespace) -> dict:
-    from .diagnose import diagnose
+    from .diagnosis import diagnose
     from .fmu import ensure_fmu
     from .report import write_report
 
@@ -277,7 +277,7 @@ def cmd_diagnose(a: argparse.Namespace) -> dict:
     print(f"before: rms_y {d.before['rms_y']:.6f} MU, rms_u {d.before['rms_u']:.6f} MU")
     print(f"after:  rms_y {d.after['rms_y']:.6f} MU, rms_u {d.after['rms_u']:.6f} MU")
     for e in d.selected:
-        from .diagnose import CATALOGUE
+        from .diagnosis import CATALOGUE
 
         for p in CATALOGUE[e].params:
             print(f"  {p} = {d.parameters[p]:.6g} ± {d.uncertainties.get(p, float('nan')):.2g}")
@@ -390,7 +390,7 @@ EXAMPLES = """examples:
 
 
 def _catalogue_help() -> str:
-    from .diagnose import CATALOGUE
+    from .diagnosis import CATALOGUE
     from .fast import param_table
 
     lines = ["effect catalogue (name: FMU parameters [unit], what it models):"]

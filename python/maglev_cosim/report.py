@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .diagnose import CATALOGUE, CRITERION, Diagnosis
+from .diagnosis import CATALOGUE, CRITERION, Diagnosis
 from .metrics import nrmse_fit, psd, resid
 from .record import Record
 

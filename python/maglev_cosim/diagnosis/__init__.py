@@ -1,0 +1,15 @@
+"""Closing the loop with measured data: replay, calibrate, find the residual, trace it to the
+effect the model lacks, add it, and report the error before and after.
+
+- :mod:`.effects`: the catalogue; each effect owns its fit coordinates, starts and transforms;
+- :mod:`.problem`: the fit problem and least squares over parameterizations;
+- :mod:`.residual`: describing a residual, and the noise floor of a record;
+- :mod:`.acceptance`: the held-out likelihood-ratio test;
+- :mod:`.pipeline`: the stages and :func:`diagnose`.
+"""
+
+from .acceptance import CRITERION, accept
+from .effects import BASELINE, CATALOGUE, Effect
+from .pipeline import Diagnosis, diagnose
+
+__all__ = ["BASELINE", "CATALOGUE", "CRITERION", "Diagnosis", "Effect", "accept", "diagnose"]

@@ -1,0 +1,189 @@
+"""The catalogue of effects the baseline model may lack, each owning how it is fitted.
+
+An :class:`Effect` knows its FMU parameters, the coordinates it is fitted in (with scales and
+bounds), how those coordinates map to parameter values and back, and where a fit should start
+given the record. The calibrated baseline parameters are a :class:`Parameterization` too
+(:data:`BASELINE`), so a fit is always a list of parameterizations.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .residual import spectral_peaks
+
+if TYPE_CHECKING:
+    from .problem import Problem
+
+
+@dataclass(frozen=True)
+class Coord:
+    """One fit coordinate: name, scale (a typical size, so the solver sees order 1) and bounds."""
+
+    name: str
+    scale: float
+    lo: float
+    hi: float
+
+
+class Parameterization:
+    """A set of FMU parameters fitted in coordinates ``coords`` (the identity map by default)."""
+
+    params: tuple[str, ...] = ()
+    coords: tuple[Coord, ...] = ()
+
+    def to_params(self, z: Sequence[float]) -> dict[str, float]:
+        """Parameter values [SI units] from coordinates ``z``."""
+        return {c.name: float(v) for c, v in zip(self.coords, z)}
+
+    def to_coords(self, values: Mapping[str, float]) -> list[float]:
+        """Coordinates of parameter values."""
+        return [float(values[c.name]) for c in self.coords]
+
+    def uncertainty_scales(self) -> dict[str, float]:
+        """A step size per FMU parameter for Jacobians of the parameters themselves."""
+        return {c.name: c.scale for c in self.coords}
+
+
+class Baseline(Parameterization):
+    """The baseline parameters calibrated on every record: ``k_c``, ``x_0``, ``k_FV`` and the D/A
+    offset ``u_0`` (not ``y_MU0``: in a regulated loop it shifts the picture exactly as ``x_0``)."""
+
+    coords = (Coord("k_c", 1e-6, 1e-7, 1e-4), Coord("x_0", 1e-3, 6.8e-3, 0.03),
+              Coord("k_FV", 1e-2, 0.0, 0.5), Coord("u_0", 0.05, -1.0, 1.0))
+    params = tuple(c.name for c in coords)
+
+
+BASELINE = Baseline()
+
+
+class Effect(Parameterization):
+    """A candidate effect of the catalogue."""
+
+    name: str = ""
+    description: str = ""
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        """Starting coordinates, placed from the record where the cost is flat or multimodal."""
+        raise NotImplementedError
+
+    def start_values(self, z: Sequence[float], prob: Problem, current: Mapping[str, float]) -> dict[str, float]:
+        """The full values a start ``z`` stands for (an effect may move baseline values with it)."""
+        return {**current, **self.to_params(z)}
+
+    def prefit(self, prob: Problem, current: Mapping[str, float], z: list[float]) -> list[float]:
+        """A cheap refinement of the chosen start before the joint fit (none by default)."""
+        return z
+
+
+class _TimeConstant(Effect):
+    """A lag or a delay: one time constant. Near the stability limit the replay error is far from
+    quadratic in it, and a coarse start can leave least squares in a side valley: a dense grid."""
+
+    def __init__(self, name: str, param: str, lo: float, description: str) -> None:
+        self.name, self.description, self.params = name, description, (param,)
+        self.coords = (Coord(param, 1e-3, lo, 0.05),)
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        lo = max(self.coords[0].lo, 2.5e-4)
+        return [[float(v)] for v in np.concatenate([np.linspace(lo, 4e-3, 16), np.linspace(4.5e-3, 1.5e-2, 15)])]
+
+
+class SensorNonlinearity(Effect):
+    name = "sensor_nonlinearity"
+    description = "the sensor's deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12"
+    params = ("k_x2",)
+    coords = (Coord("k_x2", 1e4, -1e6, 1e6),)
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        return [[float(v)] for v in np.linspace(-6e4, 6e4, 24)]     # 0 excluded: the fit starts off it
+
+    def start_values(self, z: Sequence[float], prob: Problem, current: Mapping[str, float]) -> dict[str, float]:
+        """A bent sensor also shifts the reading at the operating point, which x_0 absorbs once
+        recalibrated: x_0 moves with the bend, so that a start is judged by the bend, not the offset."""
+        vals = super().start_values(z, prob, current)
+        base = prob.base
+        k_x = base["k_x"]
+        xbar = float(np.mean((prob.rec.y - base["y_MU0"]) / base["k_AD"] - base["y_0"])) / k_x
+        k2 = vals["k_x2"] - current.get("k_x2", 0.0)
+        x0 = current["x_0"] - k2 * xbar * (xbar - base["x_cal"]) / (k_x + k2 * (2 * xbar - base["x_cal"]))
+        c = next(c for c in BASELINE.coords if c.name == "x_0")
+        vals["x_0"] = min(max(x0, c.lo), c.hi)
+        return vals
+
+
+class CurrentSaturation(Effect):
+    name = "current_saturation"
+    description = "an amplifier current limit i_max below the 1.5 A the D/A range implies"
+    params = ("i_max",)
+    coords = (Coord("i_max", 0.05, 0.2, 1.5),)
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        """Just below the record's peak demand: the cost is flat for limits above it."""
+        i = np.sort(prob.simulate(current)["i"])
+        return [[float(i[int(q * (len(i) - 1))])] for q in (0.9999, 0.999, 0.995, 0.99, 0.98, 0.95, 0.9, 0.8, 0.7)]
+
+
+class PeriodicDisturbance(Effect):
+    """Fitted in (a, b) = A_d·(cos φ, sin φ) and f_d: the loop's response to a small pickup is
+    nearly linear in (a, b), while (A_d, phi_d) make a poorly shaped problem."""
+
+    name = "periodic_disturbance"
+    description = "sinusoidal pickup A_d*sin(2*pi*f_d*t + phi_d) on the sensor voltage"
+    params = ("A_d", "f_d", "phi_d")
+    coords = (Coord("a", 0.01, -1.0, 1.0), Coord("b", 0.01, -1.0, 1.0), Coord("f_d", 0.01, 0.5, 450.0))
+
+    def to_params(self, z: Sequence[float]) -> dict[str, float]:
+        a, b, f = (float(v) for v in z)
+        return {"A_d": math.hypot(a, b), "phi_d": math.atan2(b, a), "f_d": f}
+
+    def to_coords(self, values: Mapping[str, float]) -> list[float]:
+        return [values["A_d"] * math.cos(values["phi_d"]), values["A_d"] * math.sin(values["phi_d"]), values["f_d"]]
+
+    def uncertainty_scales(self) -> dict[str, float]:
+        return {"A_d": 0.01, "f_d": 0.01, "phi_d": 1.0}
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        """At the residual's spectral peaks, four phases each."""
+        sim = prob.simulate(current)
+        peaks = spectral_peaks(prob.rec.u - sim["u"], prob.rec.ts, count=2)
+        peaks += spectral_peaks(prob.rec.y - sim["y"], prob.rec.ts, count=1)
+        out = [[0.01 * math.cos(ph), 0.01 * math.sin(ph), p["f"]]
+               for p in peaks for ph in (0.0, math.pi / 2, math.pi, -math.pi / 2)]
+        return out or [[0.0, 0.0, 50.0]]
+
+    def prefit(self, prob: Problem, current: Mapping[str, float], z: list[float]) -> list[float]:
+        """Amplitude and phase first at the start's frequency (a nearly linear problem)."""
+        from .problem import fit
+
+        fixed = prob.with_base({**current, "f_d": z[2]})
+        pre = fit(fixed, [_AmplitudePhase()], [z[:2]], max_nfev=20)
+        return self.to_coords({**pre.values, "f_d": z[2]})[:2] + [z[2]]
+
+
+class _AmplitudePhase(Parameterization):
+    """The pickup's (a, b) alone, its frequency held: the pre-fit of :class:`PeriodicDisturbance`."""
+
+    params = ("A_d", "phi_d")
+    coords = PeriodicDisturbance.coords[:2]
+
+    def to_params(self, z: Sequence[float]) -> dict[str, float]:
+        a, b = (float(v) for v in z)
+        return {"A_d": math.hypot(a, b), "phi_d": math.atan2(b, a)}
+
+
+CATALOGUE: dict[str, Effect] = {e.name: e for e in (
+    _TimeConstant("amplifier_lag", "T_a", 0.0, "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5"),
+    # below 50 us a force lag is invisible at 1 kHz
+    _TimeConstant("force_lag", "T_F", 5e-5, "the magnetic force following the static law through a lag T_F "
+                  "(eddy currents)"),
+    _TimeConstant("delay", "T_d", 0.0, "a transport delay T_d of the D/A signal (computation and I/O)"),
+    SensorNonlinearity(),
+    CurrentSaturation(),
+    PeriodicDisturbance(),
+)}

@@ -1,0 +1,341 @@
+"""The diagnosis as stages, each with one responsibility:
+
+1. :func:`calibrate`: replay the record on the baseline (Section 3, ``T_a = 0``) and calibrate
+   its free parameters (:data:`~.effects.BASELINE`): the "before" model;
+2. :func:`search`: rounds of candidate fits on the fit blocks, judged on the held-out blocks
+   (:mod:`.acceptance`); the best accepted effect joins the model and the search repeats;
+3. :func:`refit`: the final model refitted on the whole record, with uncertainties: "after";
+4. :func:`summarise`: what is left unexplained, and where a choice was weak.
+
+:func:`diagnose` runs them in order and returns a :class:`Diagnosis`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from multiprocessing import get_context
+
+import numpy as np
+
+from ..record import Record
+from ..replay import baseline_params
+from .acceptance import BLOCK, CRITERION, accept
+from .effects import BASELINE, CATALOGUE, Parameterization
+from .problem import Problem, cost_on, fit, residuals
+from .residual import analyse_residual, effective_samples, noise_floor
+
+MAX_EFFECTS = 3
+
+Say = Callable[[str], None]
+
+
+@dataclass
+class Diagnosis:
+    """Everything the diagnosis found; :meth:`to_json` gives the ``diagnosis.json`` content."""
+
+    record: str
+    before: dict[str, float]
+    after: dict[str, float]
+    selected: list[str]
+    parameters: dict[str, float]
+    uncertainties: dict[str, float]
+    candidates: list[dict]
+    calibrated_baseline: dict[str, float]
+    residual_before: dict
+    residual_after: dict
+    noise: dict[str, float]
+    rounds: list[dict]
+    elapsed: float
+    sims: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    unexplained: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {
+            "record": self.record,
+            "before": self.before,
+            "after": self.after,
+            "selected": self.selected,
+            "parameters": self.parameters,
+            "uncertainties": self.uncertainties,
+            "candidates": self.candidates,
+            "calibrated": list(BASELINE.params),
+            "calibrated_baseline": self.calibrated_baseline,
+            "criterion": CRITERION,
+            "rounds": self.rounds,
+            "residual_before": self.residual_before,
+            "residual_after": self.residual_after,
+            "noise_floor": self.noise,
+            "unexplained": self.unexplained,
+            "elapsed_s": self.elapsed,
+        }
+
+
+def rms(rec: Record, sim: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """RMS of measured minus simulated y and u [MU]."""
+    return {"rms_y": float(np.sqrt(np.mean((rec.y - sim["y"]) ** 2))),
+            "rms_u": float(np.sqrt(np.mean((rec.u - sim["u"]) ** 2)))}
+
+
+# ----------------------------------------------------------------------------- 0. where to start
+
+def static_start(rec: Record, base: dict[str, float], say: Say) -> dict[str, float]:
+    """Starting values of k_c and x_0 from the paper's least-squares fit of Eq. 14 on the record's
+    settled segments (Sec. 3.4.2), when it has them and they lie inside the calibration bounds."""
+    from ..identify import equilibrium_points, least_squares_eq14
+
+    try:
+        x, u_v = equilibrium_points(rec, base)
+        lq = least_squares_eq14(x, u_v, base["m_k"], base["g"])
+    except ValueError:
+        return {}
+    k_c = lq["k_f"] / base["k_i"] ** 2
+    bounds = {c.name: (c.lo, c.hi) for c in BASELINE.coords}
+    if not (bounds["k_c"][0] < k_c < bounds["k_c"][1] and bounds["x_0"][0] < lq["x_0"] < bounds["x_0"][1]):
+        return {}
+    say(f"starting from the Eq. 14 least-squares fit: k_c = {k_c:.4g} N.m2/A2, x_0 = {lq['x_0'] * 1e3:.3f} mm")
+    return {"k_c": k_c, "x_0": lq["x_0"]}
+
+
+# ----------------------------------------------------------------------------- 1. calibrate
+
+@dataclass
+class Calibration:
+    prob: Problem                    # weighted by the calibrated baseline's residual, fit blocks
+    values: dict[str, float]         # the calibrated baseline parameters
+    raw: dict[str, np.ndarray]       # replay of the uncalibrated baseline
+    sim: dict[str, np.ndarray]       # replay of the calibrated baseline
+
+
+def calibrate(rec: Record, base: dict[str, float], fit_mask: np.ndarray, say: Say) -> Calibration:
+    """Replays the baseline as it is, calibrates :data:`BASELINE` on the fit blocks, and weighs
+    the y and u errors by the calibrated baseline's RMS."""
+    say("replaying the record on the baseline model (Section 3, T_a = 0)")
+    prob = Problem(rec, base, 1.0, 1.0, fit_mask)
+    sim0 = prob.simulate({})
+    raw = rms(rec, sim0)
+    say(f"calibrating {', '.join(BASELINE.params)} (raw replay error: rms_y {raw['rms_y']:.5f} MU, "
+        f"rms_u {raw['rms_u']:.5f} MU)")
+    prob = Problem(rec, base, max(raw["rms_y"], 1e-6), max(raw["rms_u"], 1e-6), fit_mask)
+    cal = fit(prob, [BASELINE], [BASELINE.to_coords(base)])
+    sim = prob.simulate(cal.values)
+    before = rms(rec, sim)
+    say(f"calibrated baseline: rms_y {before['rms_y']:.5f} MU, rms_u {before['rms_u']:.5f} MU")
+    prob = Problem(rec, base, max(before["rms_y"], 1e-6), max(before["rms_u"], 1e-6), fit_mask)
+    return Calibration(prob, dict(cal.values), sim0, sim)
+
+
+# ----------------------------------------------------------------------------- 2. search
+
+def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) -> dict:
+    """Fits one effect together with the recalibrated baseline on the fit blocks; effects
+    selected in earlier rounds stay in the model (in ``current``) while this one is fitted."""
+    eff = CATALOGUE[effect_name]
+    prob = prob.with_base(current)
+    # choose the best start with the baseline held, then fit everything from it
+    best, best_cost, best_vals = None, math.inf, None
+    for z in eff.starts(prob, current):
+        vals = eff.start_values(z, prob, current)
+        c = float(np.mean(residuals(prob, vals) ** 2))
+        if c < best_cost:
+            best, best_cost, best_vals = z, c, vals
+    best = eff.prefit(prob, current, list(best))
+    f = fit(prob, [BASELINE, eff], [BASELINE.to_coords(best_vals), best])
+    return {"effect": effect_name, "values": {**current, **f.values}, "fit_cost": f.cost, "nfev": f.nfev}
+
+
+def _worker(args: tuple[Problem, dict[str, float], str]) -> dict:
+    return fit_candidate(*args)
+
+
+def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, rnd: int) -> tuple[dict, dict]:
+    """A fitted candidate judged on the held-out blocks: its table entry and its values."""
+    vals = res["values"]
+    hold_after = cost_on(prob, vals, hold_mask)
+    r_hold = residuals(prob, vals, hold_mask)
+    half = len(r_hold) // 2
+    n_eff = min(effective_samples(r_hold[:half]), effective_samples(r_hold[half:]))
+    eff = CATALOGUE[res["effect"]]
+    ok, stats = accept(hold_before, hold_after, n_eff, len(eff.params))
+    errs = rms(prob.rec, prob.simulate(vals))
+    entry = {"effect": res["effect"], "round": rnd, "parameters": {p: vals[p] for p in eff.params}, **errs,
+             "accepted": ok, "held_out_cost_before": hold_before, "held_out_cost_after": hold_after, **stats,
+             "calibrated": {n: vals[n] for n in BASELINE.params}}
+    return entry, vals
+
+
+@dataclass
+class Search:
+    selected: list[str]
+    values: dict[str, float]         # baseline and effect values of the model after the search
+    candidates: list[dict]
+    rounds: list[dict]
+
+
+def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hold_mask: np.ndarray,
+           workers: int, say: Say) -> Search:
+    """Rounds of candidate fits; the best accepted effect joins the model each round."""
+    selected: list[str] = []
+    candidates: list[dict] = []
+    rounds: list[dict] = []
+    ctx = get_context("fork") if sys.platform.startswith("linux") else get_context()
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx) if workers > 1 else None
+    try:
+        for rnd in range(1, MAX_EFFECTS + 1):
+            remaining = [e for e in effects if e not in selected]
+            if not remaining:
+                break
+            hold_before = cost_on(prob, current, hold_mask)
+            say(f"round {rnd}: fitting {len(remaining)} candidate effect(s) on the fit blocks")
+            jobs = [(prob, current, e) for e in remaining]
+            results = []
+            for k, res in enumerate(pool.map(_worker, jobs) if pool else map(_worker, jobs), 1):
+                entry, vals = judge(prob, hold_mask, hold_before, res, rnd)
+                results.append((entry, vals))
+                say(f"  [{k}/{len(jobs)}] {entry['effect']}: "
+                    + ", ".join(f"{p} = {v:.4g}" for p, v in entry["parameters"].items())
+                    + f"; held-out cost change {-100 * entry['held_out_gain']:+.1f} % "
+                    + f"(LR {entry['lr_statistic']:.1f} vs {entry['threshold']:.1f}) -> "
+                    + ("accepted" if entry["accepted"] else "rejected"))
+            candidates += [entry for entry, _ in results]
+            accepted = [r for r in results if r[0]["accepted"]]
+            rounds.append({"round": rnd, "held_out_cost_before": hold_before,
+                           "accepted": [e["effect"] for e, _ in accepted]})
+            if not accepted:
+                break
+            entry, vals = min(accepted, key=lambda r: r[0]["held_out_cost_after"])
+            entry["selected"] = True
+            selected.append(entry["effect"])
+            current = dict(vals)
+            say(f"round {rnd}: added {entry['effect']}")
+    finally:
+        if pool:
+            pool.shutdown()
+    return Search(selected, current, candidates, rounds)
+
+
+# ----------------------------------------------------------------------------- 3. refit
+
+def uncertainty(prob: Problem, values: Mapping[str, float], steps: Mapping[str, float]) -> dict[str, float]:
+    """1-sigma standard errors of the parameters in ``steps`` (each with its typical size) from the
+    Jacobian at the solution, inflated by N/N_eff for the residual's autocorrelation."""
+    names = list(steps)
+    x = np.array([values[n] for n in names])
+    sc = np.array([steps[n] for n in names])
+    r0 = residuals(prob, {**values, **dict(zip(names, x))})
+    jac = np.empty((len(r0), len(names)))
+    for k in range(len(names)):
+        h = 1e-4 * sc[k]
+        xp = x.copy()
+        xp[k] += h
+        jac[:, k] = (residuals(prob, {**values, **dict(zip(names, xp))}) - r0) / (h / sc[k])
+    half = len(r0) // 2
+    n_eff = min(effective_samples(r0[:half]), effective_samples(r0[half:]))
+    s2 = float(np.sum(r0**2)) / max(len(r0) - len(names), 1)
+    try:
+        cov = np.linalg.pinv(jac.T @ jac) * s2 * (len(r0) / 2) / max(n_eff, 1.0)
+    except np.linalg.LinAlgError:
+        return {n: math.nan for n in names}
+    return {n: float(math.sqrt(max(cov[k, k], 0.0)) * sc[k]) for k, n in enumerate(names)}
+
+
+def refit(prob: Problem, current: dict[str, float], selected: Sequence[str], say: Say) -> tuple[dict, dict]:
+    """The final model refitted on the whole record: its values and their uncertainties."""
+    say(f"refitting the final model ({', '.join(selected) or 'baseline only'}) on the whole record")
+    whole = prob.with_mask(np.ones(prob.rec.n, bool))
+    parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in selected)]
+    final = fit(whole, parts, [p.to_coords(current) for p in parts], max_nfev=40)
+    values = {**current, **final.values}
+    say("estimating parameter uncertainties")
+    steps = {k: v for p in parts for k, v in p.uncertainty_scales().items()}
+    return values, uncertainty(whole, values, steps)
+
+
+# ----------------------------------------------------------------------------- 4. summarise
+
+def summarise(rec: Record, after: dict[str, float], residual_after: dict, noise: dict[str, float],
+              candidates: list[dict], rounds: list[dict]) -> dict:
+    """What the final model leaves: its residual over the noise floor, periodic peaks, and the
+    rounds where a rival effect explained nearly as much as the chosen one."""
+    ratio_u = after["rms_u"] / noise["rms_u_from_sensor_noise"] if noise["rms_u_from_sensor_noise"] > 0 else None
+    out = {
+        "rms_y_over_sensor_noise": after["rms_y"] / noise["sigma_y"] if noise["sigma_y"] > 0 else None,
+        "rms_u_over_noise_response": ratio_u,
+        "peaks_left_u": [p for p in residual_after["peaks_u"] if p["prominence"] > 30],
+        "ambiguous": [],
+        "note": "",
+    }
+    for rnd in rounds:
+        acc = sorted((c for c in candidates if c["round"] == rnd["round"] and c["accepted"]),
+                     key=lambda c: -c["held_out_gain"])
+        if len(acc) > 1 and acc[1]["held_out_gain"] > 0.8 * acc[0]["held_out_gain"]:
+            out["ambiguous"].append({"round": rnd["round"], "chosen": acc[0]["effect"], "rival": acc[1]["effect"],
+                                     "gains": [acc[0]["held_out_gain"], acc[1]["held_out_gain"]]})
+    notes = []
+    if out["peaks_left_u"]:
+        notes.append("narrow spectral peaks remain in the u residual: something periodic is still unexplained")
+    if ratio_u is not None and ratio_u > 1.1:
+        notes.append(f"the u residual is {ratio_u:.2f} times what sensor noise alone explains: the final model "
+                     "still lacks something (an effect outside the catalogue, or disturbances the record does "
+                     "not show)")
+    elif ratio_u is not None:
+        notes.append(f"the u residual is {ratio_u:.2f} times what sensor noise alone explains")
+    for a in out["ambiguous"]:
+        notes.append(f"in round {a['round']} {a['rival']} explains nearly as much as {a['chosen']} (held-out "
+                     f"reductions {100 * a['gains'][0]:.1f} % and {100 * a['gains'][1]:.1f} %): the choice is weak, "
+                     "and an effect outside the catalogue with the same signature cannot be excluded")
+    out["note"] = "; ".join(notes)
+    return out
+
+
+# ----------------------------------------------------------------------------- the whole
+
+def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int | None = None,
+             progress: Say | None = None, start: Mapping[str, float] | None = None) -> Diagnosis:
+    """Runs the stages on a record.
+
+    Parameters
+    ----------
+    rec : Record
+        The closed-loop record.
+    effects : sequence of str, optional
+        The catalogue entries to consider (default: all of :data:`~.effects.CATALOGUE`).
+    workers : int, optional
+        Processes for the candidate fits (default: 2, or 1 on a one-core machine).
+    progress : callable, optional
+        Called with a line of text at each step.
+    start : mapping, optional
+        Starting values of the calibrated parameters (default: the Eq. 14 fit of the record's
+        settled segments where it has them, else the Section 3 values).
+    """
+    t0 = time.perf_counter()
+    say = progress or (lambda s: None)
+    effects = list(CATALOGUE) if effects is None else list(effects)
+    for e in effects:
+        if e not in CATALOGUE:
+            raise ValueError(f"unknown effect {e!r}: choose from {', '.join(CATALOGUE)}")
+    workers = workers or min(2, os.cpu_count() or 1)
+    base = baseline_params()
+    base.update({k: float(v) for k, v in (static_start(rec, base, say) if start is None else start).items()})
+    fit_mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+
+    cal = calibrate(rec, base, fit_mask, say)
+    found = search(cal.prob, dict(cal.values), effects, ~fit_mask, workers, say)
+    final_values, unc = refit(cal.prob, found.values, found.selected, say)
+    sim_after = cal.prob.simulate(final_values)
+    before, after = rms(rec, cal.sim), rms(rec, sim_after)
+    residual_after = analyse_residual(rec, sim_after)
+    noise = noise_floor(rec)
+    unexplained = summarise(rec, after, residual_after, noise, found.candidates, found.rounds)
+    elapsed = time.perf_counter() - t0
+    say(f"done in {elapsed:.1f} s: before rms_y {before['rms_y']:.5f} rms_u {before['rms_u']:.5f}; "
+        f"after rms_y {after['rms_y']:.5f} rms_u {after['rms_u']:.5f}; selected: {found.selected or 'none'}")
+    return Diagnosis(rec.path, before, after, found.selected, {k: float(v) for k, v in {**base, **final_values}.items()},
+                     unc, found.candidates, {**base, **cal.values}, analyse_residual(rec, cal.sim), residual_after,
+                     noise, found.rounds, elapsed,
+                     sims={"raw": cal.raw, "before": cal.sim, "after": sim_after}, unexplained=unexplained)

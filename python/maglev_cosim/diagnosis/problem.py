@@ -1,0 +1,94 @@
+"""The fit problem: a record, the parameter values the free ones are applied to, the weights of
+the y and u errors, and the samples that count; least squares over parameterizations."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..record import Record
+from ..replay import replay
+
+if TYPE_CHECKING:
+    from .effects import Parameterization
+
+
+@dataclass
+class Problem:
+    """What every fit needs; picklable so that candidates can be fitted in worker processes."""
+
+    rec: Record
+    base: dict[str, float]          # complete parameter set the free parameters are applied to
+    sigma_y: float                  # [MU] weights: residuals are divided by these
+    sigma_u: float
+    mask: np.ndarray                # samples whose error counts in the fit
+
+    def simulate(self, values: Mapping[str, float]) -> dict[str, np.ndarray]:
+        """The record's closed loop replayed with ``values`` over the base."""
+        return replay(self.rec, {**self.base, **values})
+
+    def with_base(self, values: Mapping[str, float]) -> Problem:
+        """The same problem with ``values`` folded into the base."""
+        return replace(self, base={**self.base, **values})
+
+    def with_mask(self, mask: np.ndarray) -> Problem:
+        return replace(self, mask=mask)
+
+
+def residuals(prob: Problem, values: Mapping[str, float], mask: np.ndarray | None = None) -> np.ndarray:
+    """Weighted residual vector (y errors, then u errors) of a replay with ``values`` applied.
+    A parameter set the plant rejects (say x_0 pushed below x_max) costs as much as a ball
+    lying on a stop: the search then turns away from it instead of failing."""
+    m = prob.mask if mask is None else mask
+    try:
+        sim = prob.simulate(values)
+    except ValueError:
+        sim = {"y": np.zeros(prob.rec.n), "u": np.full(prob.rec.n, prob.rec.u_max)}
+    return np.concatenate([(prob.rec.y - sim["y"])[m] / prob.sigma_y, (prob.rec.u - sim["u"])[m] / prob.sigma_u])
+
+
+def cost_on(prob: Problem, values: Mapping[str, float], mask: np.ndarray) -> float:
+    """Mean squared weighted residual on the samples of ``mask``."""
+    return float(np.mean(residuals(prob, values, mask) ** 2))
+
+
+@dataclass
+class Fit:
+    """The result of fitting a set of free parameters."""
+
+    values: dict[str, float]
+    cost: float                      # mean squared weighted residual on the fit samples
+    nfev: int = 0
+
+
+def _values(parts: Sequence[Parameterization], z: np.ndarray) -> dict[str, float]:
+    out: dict[str, float] = {}
+    k = 0
+    for part in parts:
+        n = len(part.coords)
+        out.update(part.to_params(z[k:k + n]))
+        k += n
+    return out
+
+
+def fit(prob: Problem, parts: Sequence[Parameterization], z0: Sequence[Sequence[float]], *,
+        max_nfev: int = 60) -> Fit:
+    """Least squares (trust-region reflective) over the coordinates of ``parts``, started at
+    ``z0`` (one coordinate list per part), in scaled coordinates."""
+    coords = [c for part in parts for c in part.coords]
+    sc = np.array([c.scale for c in coords])
+    lo = np.array([c.lo for c in coords]) / sc
+    hi = np.array([c.hi for c in coords]) / sc
+    start = np.array([v for z in z0 for v in z], dtype=float)
+    zs = np.clip(start / sc, lo + 1e-12, hi - 1e-12)
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        return residuals(prob, _values(parts, z * sc))
+
+    r = least_squares(fun, zs, bounds=(lo, hi), diff_step=1e-6, x_scale=1.0, max_nfev=max_nfev,
+                      ftol=1e-8, xtol=1e-8, gtol=1e-10)
+    return Fit(_values(parts, r.x * sc), float(np.mean(r.fun**2)), int(r.nfev))
