@@ -9,5 +9,7 @@ cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DMAGLEV_SANITIZE=ON >/dev/nul
 cmake --build build-asan --parallel 2 >/dev/null
 (cd build-asan && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --output-on-failure)
-echo "[test] Python tests"
+echo "[test] Python tests, quick tier"
 .venv/bin/python -m pytest "$@"
+echo "[test] Python tests, slow tier (the diagnosis matrix; one line per test as it finishes)"
+.venv/bin/python -m pytest -m slow -v --durations=5 "$@"

@@ -103,6 +103,7 @@ def test_help_version_and_module_entry_point():
             assert len(ln.split()) > 1 or ln.strip() in ("--no-noise", "--no-diagnose", "--no-simplex"), (command, ln)
 
 
+@pytest.mark.slow
 def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_path, fmu_path):
     rec = tmp_path / "rec.csv"
     r = cli("synth", "--out", str(rec), "--effect", "delay:T_d=0.003", "--reference", "square", "--seed", "2")

@@ -18,6 +18,9 @@ from maglev_cosim.replay import replay
 from maglev_cosim.rig import RigConfig, reference, simulate_rig
 from maglev_cosim.synth import synth_record
 
+#: The diagnosis matrix takes minutes: the slow tier (``pytest -m slow``), which CI runs too.
+pytestmark = pytest.mark.slow
+
 SEED = 5
 
 # name: (effects, plant parameter changes, expected selection, {param: (true, relative tolerance)})
