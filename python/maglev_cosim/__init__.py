@@ -2,6 +2,52 @@
 
 Units follow the paper: positions in m, velocities in m/s, currents in A, voltages in V,
 converter values in machine units (MU, ±1 full range), times in s.
+
+The public API is importable from here; each name loads its module on first use, so that
+``import maglev_cosim`` stays cheap.
 """
 
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
 __version__ = "0.1.0"
+
+#: public name -> module that defines it
+_API = {
+    "PlantParams": "params", "get_params": "params", "as_params": "params",
+    "PID": "pid",
+    "simulate": "loop", "LoopResponse": "loop", "reference_signal": "loop",
+    "linearize": "linear", "transfer_function": "linear", "operating_point": "linear",
+    "discrete_closed_loop": "analysis", "closed_loop_report": "analysis",
+    "FmuPlant": "fmu", "FmuError": "fmu",
+    "Record": "record", "RecordError": "record", "read_record": "record", "write_record": "record",
+    "diagnose": "diagnosis", "Diagnosis": "diagnosis", "CATALOGUE": "diagnosis",
+    "nrmse_fit": "metrics", "resid": "metrics",
+}
+
+__all__ = sorted(_API) + ["__version__"]
+
+if TYPE_CHECKING:
+    from .analysis import closed_loop_report, discrete_closed_loop
+    from .diagnosis import CATALOGUE, Diagnosis, diagnose
+    from .fmu import FmuError, FmuPlant
+    from .linear import linearize, operating_point, transfer_function
+    from .loop import LoopResponse, reference_signal, simulate
+    from .metrics import nrmse_fit, resid
+    from .params import PlantParams, as_params, get_params
+    from .pid import PID
+    from .record import Record, RecordError, read_record, write_record
+
+
+def __getattr__(name: str) -> Any:
+    if name in _API:
+        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'maglev_cosim' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return __all__
