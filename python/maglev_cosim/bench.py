@@ -41,7 +41,7 @@ def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, di
     op = operating_point(p, 0.0032)
     w = reference_signal("square", n, pid.ts, base=op.y_MU, amplitude=0.05)
     start = p.replace(x_start=0.0032, i_start=op.i).to_start_values()
-    fast.closed_loop(start, w[:100])          # build/load the extension outside the timing
+    fast.closed_loop(start, w[:100])          # load the fast-path library outside the timing
 
     t_fmpy = _best_of(lambda: simulate_closed_loop(w, params=p, x_op=0.0032, pid=pid, fmu=fmu), 3)
     t_fast = _best_of(lambda: fast.closed_loop(start, w, u_hold=op.u_MU), 5)
