@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up (scripts/setup.sh) and runs every test: the C tests under AddressSanitizer and
-# UndefinedBehaviorSanitizer (ctest), then the Python test suite (pytest).
+# UndefinedBehaviorSanitizer (ctest), then the Python test suite (pytest): first the quick tier
+# (plain pytest skips tests marked slow), then the slow tier (pytest -m slow).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -9,5 +10,9 @@ cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DMAGLEV_SANITIZE=ON >/dev/nul
 cmake --build build-asan --parallel 2 >/dev/null
 (cd build-asan && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --output-on-failure)
-echo "[test] Python tests"
+echo "[test] Python tests (against the installed package)"
 .venv/bin/python -m pytest "$@"
+echo "[test] Python tests marked slow: the wheel, installed into a fresh venv, run from outside the clone"
+rc=0
+.venv/bin/python -m pytest -m slow "$@" || rc=$?
+[ "$rc" -eq 0 ] || [ "$rc" -eq 5 ] || exit "$rc"   # 5: the arguments selected no slow test
