@@ -1,9 +1,9 @@
 """The plant FMU in closed loop with plain fmpy and the paper's PID (Eq. 24/25) written out by hand."""
 from fmpy import extract, instantiate_fmu, read_model_description
 
-from maglev_cosim.fmu import ensure_fmu
+from maglev_cosim import fmu_path
 
-unzipped = extract(str(ensure_fmu()))
+unzipped = extract(str(fmu_path()))
 md = read_model_description(unzipped)
 vr = {v.name: v.valueReference for v in md.modelVariables}
 i0 = (8.3e-3 - 3.2e-3) * (8.4e-3 * 9.81 / 6.9e-6) ** 0.5      # current holding the ball at 3.2 mm (Eq. 8)

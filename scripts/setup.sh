@@ -1,22 +1,43 @@
 #!/usr/bin/env bash
-# Sets up everything from a fresh clone: .venv with the Python packages, the CMake build of the FMU.
-# Needs only python3 (with venv), gcc and cmake. Safe to run again: it only redoes what changed.
+# Sets up everything from a fresh clone: .venv with the package installed from source (`pip install .`:
+# scikit-build-core runs CMake, so the installed package carries the FMU, the C sources and the
+# fast-path library) plus the test tools, and the CMake build in build/ (build/maglev.fmu, C tests).
+# Needs only python3 (with venv), gcc and cmake. Safe to run again: it reinstalls the package only
+# when its sources changed (a hash of pyproject.toml, CMakeLists.txt, modelDescription.xml, c/, python/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ ! -x .venv/bin/python ]; then
   echo "[setup] creating virtual environment .venv"
   python3 -m venv .venv
 fi
+pip_quiet() {  # pip, quiet, without the warnings about unreachable extra package indexes
+  .venv/bin/python -m pip --quiet --disable-pip-version-check "$@" 2>&1 | { grep -v "^WARNING: Location" || true; }
+  return "${PIPESTATUS[0]}"
+}
+sources_hash() {
+  find pyproject.toml CMakeLists.txt modelDescription.xml c python -type f \
+       \( -name '*.py' -o -name '*.c' -o -name '*.h' -o -name '*.toml' -o -name '*.txt' -o -name '*.xml' \) \
+       -not -path '*/__pycache__/*' -print0 | LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1
+}
 stamp=.venv/.maglev-installed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
-  echo "[setup] installing Python packages (fmpy, numpy, scipy, cffi, control, matplotlib, pytest)"
-  .venv/bin/python -m pip install --quiet --disable-pip-version-check --upgrade pip 2>&1 | grep -v "^WARNING: Location" || true
-  .venv/bin/python -m pip install --quiet --disable-pip-version-check -e . 2>&1 | grep -v "^WARNING: Location" || true
-  .venv/bin/python -c "import fmpy, numpy, scipy, cffi, control, matplotlib, pytest, maglev_cosim" \
+want="$(sources_hash)"
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
+  rm -f "$stamp"
+  if ! .venv/bin/python -c "import pytest, maglev_cosim" 2>/dev/null; then
+    echo "[setup] installing the package and its dependencies (fmpy, numpy, scipy, cffi, control, matplotlib, markdown, pytest)"
+    pip_quiet install --upgrade pip
+  else
+    echo "[setup] sources changed: reinstalling the package (pip install .)"
+  fi
+  # --force-reinstall --no-deps would skip dependency changes; uninstalling first makes pip rebuild
+  # the package from source even when its version did not change.
+  pip_quiet uninstall --yes maglev-cosim >/dev/null || true
+  pip_quiet install ".[test]"
+  .venv/bin/python -c "import fmpy, numpy, scipy, cffi, control, matplotlib, pytest, maglev_cosim; maglev_cosim.fmu_path()" \
     || { echo "[setup] package installation failed" >&2; exit 1; }
-  touch "$stamp"
+  echo "$want" > "$stamp"
 fi
-echo "[setup] building the FMU (build/maglev.fmu)"
+echo "[setup] building build/maglev.fmu and the C tests with CMake"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build build --parallel 2 >/dev/null
 test -f build/maglev.fmu

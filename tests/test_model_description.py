@@ -21,7 +21,7 @@ def test_committed_xml_is_what_the_c_table_generates(repo, fmu_binary):
     generated = generate(read_table(fmu_binary))
     assert committed == generated, (
         "modelDescription.xml differs from the C variable table: run "
-        f"python -m maglev_cosim.model_description {fmu_binary}")
+        f"python -m maglev_cosim.model_description {fmu_binary} {repo / 'modelDescription.xml'}")
 
 
 def test_value_references_follow_the_c_enum(repo):

@@ -4,7 +4,8 @@ Units follow the paper: positions in m, velocities in m/s, currents in A, voltag
 converter values in machine units (MU, ±1 full range), times in s.
 
 The public API is importable from here; each name loads its module on first use, so that
-``import maglev_cosim`` stays cheap.
+``import maglev_cosim`` stays cheap. :func:`fmu_path` is the installed plant FMU (or
+``$MAGLEV_FMU`` when set).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ _API = {
     "Record": "record", "RecordError": "record", "read_record": "record", "write_record": "record",
     "diagnose": "diagnosis", "Diagnosis": "diagnosis", "CATALOGUE": "diagnosis",
     "nrmse_fit": "metrics", "resid": "metrics",
+    "fmu_path": "_resources",
 }
 
 __all__ = sorted(_API) + ["__version__"]
@@ -37,6 +39,7 @@ if TYPE_CHECKING:
     from .loop import LoopResponse, reference_signal, simulate
     from .metrics import nrmse_fit, resid
     from .params import PlantParams, as_params, get_params
+    from ._resources import fmu_path
     from .pid import PID
     from .record import Record, RecordError, read_record, write_record
 

@@ -39,7 +39,7 @@ def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, di
     n = int(round(record_seconds / pid.ts))
     op = operating_point(p, 0.0032)
     w = reference_signal("square", record_seconds, pid.ts, base=op.y_MU, amplitude=0.05)
-    simulate(p, w[:100])          # build/load the extension outside the timing
+    simulate(p, w[:100])          # load the fast-path library outside the timing
 
     t_fmpy = _best_of(lambda: simulate(p, w, controller=pid, backend="fmu", fmu=fmu), 3)
     t_fast = _best_of(lambda: simulate(p, w, controller=pid, backend="fast"), 5)

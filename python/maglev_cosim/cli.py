@@ -328,12 +328,11 @@ def cmd_synth(a: argparse.Namespace) -> dict:
 # ----------------------------------------------------------------------------- demo
 
 def cmd_demo(a: argparse.Namespace) -> dict:
-    from .fmu import build_fmu
+    from .fmu import ensure_fmu
 
     out = Path(a.out)
-    _progress("building the FMU with CMake")
-    fmu = build_fmu()
-    _progress(f"FMU at {fmu}")
+    fmu = ensure_fmu(None)
+    _progress(f"FMU: {fmu}")
     ns = argparse.Namespace(amplitude=0.05, reference="step", duration=2.0, params="section3", position=0.0032,
                             out=str(out / "step"), fmu=str(fmu))
     cmd_step(ns)
@@ -411,7 +410,7 @@ def build_parser() -> argparse.ArgumentParser:
                              "Positions are in mm (or add a unit: 3.2mm, 0.0032m), converter values in MU.")
     ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
-    fmu_help = "FMU to use (default: the installed or built maglev.fmu)"
+    fmu_help = "FMU to use (default: the installed maglev.fmu, or $MAGLEV_FMU)"
 
     s = sub.add_parser("step", formatter_class=fmt, epilog=EXAMPLES,
                        help="closed-loop step, square or sine on the FMU, checked against the Python reference",
@@ -489,7 +488,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-noise", action="store_true", help="no sensor noise, random force or quantisation")
     s.set_defaults(func=cmd_synth)
 
-    s = sub.add_parser("demo", help="the main job: build, step, linearise, synthesise and diagnose a record")
+    s = sub.add_parser("demo", help="the main job: step, linearise, synthesise and diagnose a record")
     s.add_argument("--out", required=True, help="output folder")
     s.add_argument("--seed", type=int, default=7, help="seed of the synthetic record (default 7)")
     s.set_defaults(func=cmd_demo)

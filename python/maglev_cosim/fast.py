@@ -1,93 +1,48 @@
 """The cffi fast path: the same C plant the FMU compiles (``c/maglev_plant.c``) with the
 closed-loop replay of ``c/maglev_replay.c``, a whole record in one C call.
 
-The extension is built on first use into ``<repo>/build/cffi/`` (and rebuilt when a C source
-is newer); ``python -m maglev_cosim.fast`` builds it ahead of time.
+CMake builds the two into a plain shared library (``libmaglev_fast.so``, with -O3 and the strict
+warning flags) that ``pip install .`` puts into the package; it is loaded here with cffi in ABI
+mode (``ffi.dlopen``), its declarations read from the installed ``maglev_replay.h``, so nothing is
+compiled at run time. ``python -m maglev_cosim.fast`` prints the library's path.
 """
 
 from __future__ import annotations
 
-import fcntl
-import importlib.util
 import re
 import sys
 from collections.abc import Mapping
-from pathlib import Path
+from types import SimpleNamespace
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from ._resources import ResourceError, c_dir, fast_library_path
 
 if TYPE_CHECKING:
     from .params import PlantParams
     from .pid import PID
 
-REPO = Path(__file__).resolve().parents[2]
-CDIR = REPO / "c"
-BUILD = REPO / "build" / "cffi"
-MODULE = "_maglev_fast"
-SOURCES = ("maglev_plant.c", "maglev_replay.c")
-HEADERS = ("maglev_plant.h", "maglev_replay.h")
 
 def _cdef() -> str:
     """The declarations of c/maglev_replay.h, for cffi (preprocessor lines and comments removed)."""
-    text = (CDIR / "maglev_replay.h").read_text()
+    text = (c_dir() / "maglev_replay.h").read_text()
     text = re.sub(r"/\*.*?\*/", "", text, flags=re.S)
     return "\n".join(line for line in text.splitlines() if not line.lstrip().startswith("#"))
 
 
-class FastPathBuildError(RuntimeError):
-    """The C extension could not be built (one-line message)."""
+_mod: SimpleNamespace | None = None
 
 
-_mod = None
-
-
-def _stale(built: Path) -> bool:
-    newest = max((CDIR / f).stat().st_mtime for f in SOURCES + HEADERS)
-    return not built.exists() or built.stat().st_mtime < newest or Path(__file__).stat().st_mtime > built.stat().st_mtime
-
-
-def _find_built() -> Path | None:
-    hits = sorted(BUILD.glob(f"{MODULE}*.so")) + sorted(BUILD.glob(f"{MODULE}*.pyd"))
-    return hits[0] if hits else None
-
-
-def build() -> Path:
-    """Compiles the extension (serialised with a file lock) and returns its path."""
-    import cffi
-
-    BUILD.mkdir(parents=True, exist_ok=True)
-    with open(BUILD / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        built = _find_built()
-        if built is not None and not _stale(built):
-            return built
-        ffi = cffi.FFI()
-        ffi.cdef(_cdef())
-        ffi.set_source(MODULE, '#include "maglev_replay.h"',
-                       sources=[str(CDIR / s) for s in SOURCES], include_dirs=[str(CDIR)],
-                       # cffi's generated glue is not -Wpedantic clean; our C files are built with
-                       # -Wall -Wextra -Wpedantic -Werror by CMake (target maglev_replay_strict)
-                       extra_compile_args=["-O3", "-std=gnu99"],
-                       libraries=["m"])
-        try:
-            out = ffi.compile(tmpdir=str(BUILD), verbose=False)
-        except Exception as exc:  # noqa: BLE001 - report any compiler failure in one line
-            msg = " ".join(str(exc).split())
-            raise FastPathBuildError(f"building the cffi fast path failed: {msg[:300]}") from None
-        return Path(out)
-
-
-def _lib():
+def _lib() -> SimpleNamespace:
+    """``ffi`` and ``lib`` of the loaded fast-path library (loaded once per process)."""
     global _mod
     if _mod is None:
-        path = _find_built()
-        if path is None or _stale(path):
-            path = build()
-        spec = importlib.util.spec_from_file_location(MODULE, path)
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        _mod = mod
+        import cffi
+
+        ffi = cffi.FFI()
+        ffi.cdef(_cdef())
+        _mod = SimpleNamespace(ffi=ffi, lib=ffi.dlopen(str(fast_library_path())))
     return _mod
 
 
@@ -217,7 +172,8 @@ def open_loop(params: PlantParams | Mapping[str, float] | None, u: np.ndarray, *
 
 if __name__ == "__main__":
     try:
-        print(build())
-    except FastPathBuildError as exc:
+        _lib()
+        print(fast_library_path())
+    except ResourceError as exc:
         print(f"maglev_cosim.fast: {exc}", file=sys.stderr)
         raise SystemExit(2)

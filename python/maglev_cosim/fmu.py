@@ -1,4 +1,4 @@
-"""Building, finding and driving the plant FMU (``build/maglev.fmu``) through fmpy.
+"""Finding and driving the plant FMU (the installed ``maglev_cosim/_data/maglev.fmu``) through fmpy.
 
 :class:`FmuPlant` is a thin, fast wrapper over fmpy's ``FMU2Slave``: value references are
 looked up once from ``modelDescription.xml``, and ``fmi2SetReal``/``fmi2GetReal`` are called
@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import atexit
 import ctypes
-import os
 import shutil
-import subprocess
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -21,52 +19,32 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 
-REPO = Path(__file__).resolve().parents[2]
+from ._resources import ResourceError, fmu_path
 
 #: Output variables read after every step, in this order.
 OUTPUTS: tuple[str, ...] = ("y", "x", "v", "i")
 
 
 class FmuError(RuntimeError):
-    """The FMU is missing, failed to build, or an FMI call failed."""
+    """The FMU is missing or an FMI call failed."""
 
 
 def default_fmu_path() -> Path:
-    """``$MAGLEV_FMU`` if set, else ``<repo>/build/maglev.fmu``."""
-    env = os.environ.get("MAGLEV_FMU")
-    return Path(env) if env else REPO / "build" / "maglev.fmu"
-
-
-def build_fmu(build_dir: Path | None = None, *, quiet: bool = True) -> Path:
-    """Configures and builds the FMU with CMake; returns the path of ``maglev.fmu``.
-
-    Raises :class:`FmuError` with a one-line message when CMake is missing or the build fails.
-    """
-    build_dir = Path(build_dir) if build_dir else REPO / "build"
-    if shutil.which("cmake") is None:
-        raise FmuError("cmake not found on PATH: install CMake >= 3.16 to build the FMU")
-    out = subprocess.DEVNULL if quiet else None
-    for cmd in (["cmake", "-S", str(REPO), "-B", str(build_dir)],
-                ["cmake", "--build", str(build_dir), "--target", "fmu"]):
-        r = subprocess.run(cmd, stdout=out, stderr=subprocess.PIPE, text=True)
-        if r.returncode != 0:
-            last = (r.stderr.strip().splitlines() or ["(no output)"])[-1]
-            raise FmuError(f"FMU build failed ({' '.join(cmd)}): {last}")
-    fmu = build_dir / "maglev.fmu"
-    if not fmu.exists():
-        raise FmuError(f"FMU build finished but {fmu} is missing")
-    return fmu
+    """``$MAGLEV_FMU`` if set, else the installed FMU (see :func:`maglev_cosim.fmu_path`)."""
+    try:
+        return fmu_path()
+    except ResourceError as exc:
+        raise FmuError(str(exc)) from None
 
 
 def ensure_fmu(path: str | Path | None = None) -> Path:
-    """The FMU to use: ``path`` if given (must exist), else the default, built when missing."""
-    if path is not None:
-        p = Path(path)
-        if not p.is_file():
-            raise FmuError(f"FMU not found: {p}")
-        return p
-    p = default_fmu_path()
-    return p if p.is_file() else build_fmu(p.parent)
+    """The FMU to use: ``path`` if given, else the default; raises :class:`FmuError` when missing."""
+    if path is None:
+        return default_fmu_path()
+    p = Path(path)
+    if not p.is_file():
+        raise FmuError(f"FMU not found: {p}")
+    return p
 
 
 _unzip_cache: dict[tuple[str, float], str] = {}

@@ -3,9 +3,10 @@
 The C plant (``c/maglev_plant.c``) owns the variable table ``maglev_variables``: names,
 value references (the ``MaglevVR`` enum order), causality, start values, units and
 descriptions. :func:`generate` renders ``modelDescription.xml`` from that table as read
-out of the compiled FMU binary; ``tests/test_model_description.py`` fails when the
-committed file differs from what the binary says. Regenerate with
-``python -m maglev_cosim.model_description build/fmu/binaries/linux64/maglev.so``.
+out of the compiled FMU binary (the declarations come from the installed ``maglev_plant.h``);
+``tests/test_model_description.py`` fails when the committed file differs from what the binary
+says. Regenerate, from the repository root after ``scripts/setup.sh``, with
+``python -m maglev_cosim.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import cffi
+
+from ._resources import c_dir
 
 GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 MODEL_IDENTIFIER = "maglev"
@@ -63,7 +66,7 @@ class Variable:
 def read_table(library: str | Path) -> list[Variable]:
     """Reads ``maglev_variables`` out of a compiled plant/FMU shared library."""
     ffi = cffi.FFI()
-    header = (Path(__file__).resolve().parents[2] / "c" / "maglev_plant.h").read_text()
+    header = (c_dir() / "maglev_plant.h").read_text()
     for name in ("MaglevCausality", "MaglevVariable"):     # the C declarations, as the header has them
         decl = re.search(r"typedef (?:enum|struct) \{[^}]*\} " + name + ";", header)
         if decl is None:
@@ -164,10 +167,11 @@ def generate(variables: list[Variable]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
-    if len(args) != 1:
-        print("usage: python -m maglev_cosim.model_description PATH/TO/maglev.so", file=sys.stderr)
+    if len(args) not in (1, 2):
+        print("usage: python -m maglev_cosim.model_description PATH/TO/maglev.so [OUT.xml]\n"
+              "writes OUT.xml (default: modelDescription.xml in the current folder)", file=sys.stderr)
         return 2
-    target = Path(__file__).resolve().parents[2] / "modelDescription.xml"
+    target = Path(args[1] if len(args) == 2 else "modelDescription.xml")
     target.write_text(generate(read_table(args[0])))
     print(f"wrote {target}")
     return 0
