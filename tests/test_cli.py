@@ -48,6 +48,16 @@ def test_bad_record_gives_one_line_and_writes_nothing(tmp_path):
     assert not out.exists()
 
 
+def test_implausible_record_is_refused_before_anything_is_written(tmp_path):
+    rec = tmp_path / "stuck.csv"                   # the ball lies on the floor while the reference asks 3 mm
+    rec.write_text("t,w,u,y\n" + "".join(f"{k / 1000:.3f},0.4,1.0,{0.0025 + 1e-4 * (k % 2):.4f}\n" for k in range(3000)))
+    out = tmp_path / "out"
+    r = cli("diagnose", str(rec), "--out", str(out))
+    assert r.returncode == 2 and not out.exists()
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"{rec}:1:7: implausible record:" in lines[0] and "rests on a stop" in lines[0], r.stderr
+
+
 @pytest.mark.parametrize("args, words", [
     (["synth", "--out", "x.csv", "--effect", "warp:k=1"], "unknown effect 'warp'"),
     (["step", "--out", "o", "--fmu", "/no/such.fmu"], "FMU not found"),
@@ -114,6 +124,7 @@ def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_pa
     assert "round 1" in r.stderr                 # progress while it works
     d = json.loads((out / "diagnosis.json").read_text())
     assert {"record", "before", "after", "selected", "parameters", "candidates"} <= set(d)
+    assert d["record_warnings"] == []
     assert d["selected"] == ["delay"] and d["parameters"]["T_d"] == pytest.approx(0.003, rel=0.1)
     for c in d["candidates"]:
         assert {"effect", "parameters", "rms_y", "rms_u", "accepted"} <= set(c)

@@ -256,10 +256,13 @@ def cmd_bench(a: argparse.Namespace) -> dict:
 
 # ----------------------------------------------------------------------------- records
 
-def _load(path: str):
+def _load(path: str, implausible: bool = False):
     from .record import read_record
 
-    return read_record(path)
+    rec = read_record(path, plausibility="warn" if implausible else "refuse")
+    for w in rec.warnings:
+        print(f"warning: {path}: {w}", file=sys.stderr)
+    return rec
 
 
 def cmd_diagnose(a: argparse.Namespace) -> dict:
@@ -267,7 +270,7 @@ def cmd_diagnose(a: argparse.Namespace) -> dict:
     from .fmu import ensure_fmu
     from .report import write_report
 
-    rec = _load(a.record)          # fails before anything is written
+    rec = _load(a.record, a.accept_implausible)          # fails before anything is written
     fmu = ensure_fmu(a.fmu)
     effects = a.effects.split(",") if a.effects else None
     _progress(f"diagnosing {a.record}: {rec.n} samples, {rec.duration:.2f} s")
@@ -465,6 +468,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fmu", default=None, help=fmu_help)
     s.add_argument("--effects", default=None, metavar="A,B", help="comma-separated subset of the catalogue below")
     s.add_argument("--workers", type=int, default=None, help="processes for candidate fits (default 2)")
+    s.add_argument("--accept-implausible", action="store_true",
+                   help="diagnose a record that looks physically implausible (constant or saturated signals, "
+                        "the ball on a stop for most of it) with warnings in the report, instead of refusing it")
     s.set_defaults(func=cmd_diagnose)
 
     s = sub.add_parser("identify", help="the paper's identification methods on a record (Sec. 3.4)")

@@ -27,7 +27,7 @@ def baseline_params() -> dict[str, float]:
 
 def record_controller(rec: Record) -> PID:
     """The controller a record declares (its metadata; the paper's PID where it is silent)."""
-    return PID(ts=rec.ts, kp=rec.kp, ki=rec.ki, kd=rec.kd, u_min=rec.u_min, u_max=rec.u_max)
+    return PID(**rec.pid_kwargs())
 
 
 def replay(rec: Record, params: Mapping[str, float], *, w: np.ndarray | None = None) -> dict[str, np.ndarray]:

@@ -153,6 +153,9 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     lines = [f"# Diagnosis of `{rec.path}`", ""]
     lines += [f"Record: {rec.n} samples at ts = {rec.ts} s ({rec.duration:.2f} s); PID kp = {rec.kp}, "
               f"ki = {rec.ki}, kd = {rec.kd}, output limits [{rec.u_min}, {rec.u_max}] MU.", ""]
+    if d.record_warnings:
+        lines += ["**Warnings about the record** (the figures below hold for it as it is):", ""]
+        lines += [f"- {w}" for w in d.record_warnings] + [""]
     lines += ["## Result", ""]
     if d.selected:
         lines.append("Effects the baseline lacks, in the order they were found: "

@@ -54,10 +54,12 @@ class Diagnosis:
     elapsed: float
     sims: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     unexplained: dict = field(default_factory=dict)
+    record_warnings: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {
             "record": self.record,
+            "record_warnings": self.record_warnings,
             "before": self.before,
             "after": self.after,
             "selected": self.selected,
@@ -338,4 +340,5 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
     return Diagnosis(rec.path, before, after, found.selected, {k: float(v) for k, v in {**base, **final_values}.items()},
                      unc, found.candidates, {**base, **cal.values}, analyse_residual(rec, cal.sim), residual_after,
                      noise, found.rounds, elapsed,
-                     sims={"raw": cal.raw, "before": cal.sim, "after": sim_after}, unexplained=unexplained)
+                     sims={"raw": cal.raw, "before": cal.sim, "after": sim_after}, unexplained=unexplained,
+                     record_warnings=list(rec.warnings))
