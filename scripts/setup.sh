@@ -24,7 +24,7 @@ want="$(sources_hash)"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   rm -f "$stamp"
   if ! .venv/bin/python -c "import pytest, maglev_cosim" 2>/dev/null; then
-    echo "[setup] installing the package and its dependencies (fmpy, numpy, scipy, cffi, control, matplotlib, markdown, pytest)"
+    echo "[setup] installing the package and its dependencies (fmpy, numpy, scipy, cffi, control, matplotlib, markdown, threadpoolctl, pytest)"
     pip_quiet install --upgrade pip
   else
     echo "[setup] sources changed: reinstalling the package (pip install .)"

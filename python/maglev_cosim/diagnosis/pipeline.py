@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from multiprocessing import get_context
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from ..record import Record
 from ..replay import baseline_params
@@ -194,7 +195,9 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                 break
             hold_before = cost_on(prob, current, hold_mask)
             say(f"round {rnd}: fitting {len(remaining)} candidate effect(s) on the fit blocks")
-            jobs = [(prob, current, e) for e in remaining]
+            # the costliest fits first, so that no core idles at the end of the round
+            work = {e: len(CATALOGUE[e].starts(prob, current)) * len(CATALOGUE[e].params) for e in remaining}
+            jobs = [(prob, current, e) for e in sorted(remaining, key=lambda e: -work[e])]
             results = []
             for k, res in enumerate(pool.map(_worker, jobs) if pool else map(_worker, jobs), 1):
                 entry, vals = judge(prob, hold_mask, hold_before, res, rnd)
@@ -315,6 +318,14 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
         Starting values of the calibrated parameters (default: the Eq. 14 fit of the record's
         settled segments where it has them, else the Section 3 values).
     """
+    # One BLAS thread per process: the candidate fits already keep every core busy, and BLAS
+    # threads inside scipy's least squares would only compete with them for the cores.
+    with threadpool_limits(limits=1):
+        return _diagnose(rec, effects, workers, progress, start)
+
+
+def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, progress: Say | None,
+              start: Mapping[str, float] | None) -> Diagnosis:
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
     effects = list(CATALOGUE) if effects is None else list(effects)
