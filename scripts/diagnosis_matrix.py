@@ -1,10 +1,20 @@
-"""Runs the diagnosis on a matrix of synthetic records and prints a table (about 5 minutes).
+"""Runs the diagnosis on synthetic records and prints tables: the fixed matrix, and the
+acceptance benchmark over the disturbance family (false-positive rate and power).
 
-    .venv/bin/python scripts/diagnosis_matrix.py [--seed N] [--json FILE]
+    .venv/bin/python scripts/diagnosis_matrix.py [--seed N] [--json FILE]          # the matrix (~2 min)
+    .venv/bin/python scripts/diagnosis_matrix.py --family 50 [--power 5] [--seed N]  # the benchmark
 
-Each row: the record's undeclared effect (from the rig emulator), what the diagnosis selected,
-the estimates, and the RMS errors before and after. The figures in the issues' closing notes
-come from this script.
+The matrix: each row the record's undeclared effect (from the rig emulator), what the diagnosis
+selected, the estimates, and the RMS errors before and after.
+
+The benchmark (``--family N``): N records with no effect, each with its own draw from the
+disturbance family (``maglev_cosim.synth.FAMILY``: white or coloured force noise with corners
+5 to 50 Hz at 0.1 to 1 % of the weight, a drifting force offset, sensor noise 1e-4 to 1.5e-3 MU,
+10- to 14-bit converters, stable PID gains other than the paper's); the false-positive rate is
+the share of them where any effect is selected. Then (``--power M``) each catalogue effect at
+the matrix's magnitude on M of those draws: the power is the share where the planted effect is
+selected, and "after / null" divides the after-error by what the same rig and seed leave without
+the effect. The figures in the issues' closing notes come from this script.
 """
 
 from __future__ import annotations
@@ -17,7 +27,17 @@ from pathlib import Path
 
 from maglev_cosim.diagnosis import CATALOGUE, diagnose
 from maglev_cosim.record import read_record
-from maglev_cosim.synth import synth_record
+from maglev_cosim.synth import draw_disturbance, synth_record
+
+#: The catalogue cases of the power benchmark: today's magnitudes (the matrix's).
+POWER_CASES: dict[str, dict] = {
+    "amplifier_lag": {"amplifier_lag": {"T_a": 0.003}},
+    "force_lag": {"force_lag": {"T_F": 0.002}},
+    "delay": {"delay": {"T_d": 0.0025}},
+    "sensor_nonlinearity": {"sensor_nonlinearity": {"k_x2": -30000.0}},
+    "current_saturation": {"current_saturation": {"i_max": 0.85}},
+    "periodic_disturbance": {"periodic_disturbance": {"A_d": 0.008, "f_d": 37.0, "phi_d": 1.0}},
+}
 
 CASES: list[tuple[str, dict]] = [
     ("none", {}),
@@ -40,11 +60,74 @@ CASES: list[tuple[str, dict]] = [
 ]
 
 
+def _describe(dist: dict) -> str:
+    colour = "white" if dist["tau_F_noise"] == 0 else f"{1 / (2 * 3.14159265 * dist['tau_F_noise']):.0f}Hz"
+    return (f"sy={dist['sigma_y']:.1e} F={100 * dist['sigma_F_rel']:.2f}%/{colour} "
+            f"drift={100 * dist['F_drift_rel']:.2f}% {dist['bits']}b "
+            f"pid={dist.get('kp', 2):.2f}/{dist.get('ki', 2.97):.2f}/{dist.get('kd', 0.01):.4f}")
+
+
+def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
+    """The acceptance benchmark: false positives on no-effect records, power on catalogue effects."""
+    out: dict = {"null": [], "power": []}
+    after_null: dict[int, float] = {}
+    print(f"\nNo-effect records over the disturbance family ({n_null}):")
+    print(f"{'seed':>6}  {'disturbance':<62}{'selected':<28}{'after y/u [MU]':<22}{'s':>5}")
+    for k in range(n_null):
+        seed = seed0 + k
+        dist = draw_disturbance(seed)
+        rec = read_record(synth_record(tmp / f"n{k}.csv", seed=seed, disturbance=dist), plausibility="warn")
+        t0 = time.perf_counter()
+        d = diagnose(rec)
+        dt = time.perf_counter() - t0
+        after_null[seed] = d.after["rms_u"]
+        print(f"{seed:>6}  {_describe(dist):<62}{','.join(d.selected) or '-':<28}"
+              f"{d.after['rms_y']:.5f}/{d.after['rms_u']:.5f}   {dt:5.1f}", flush=True)
+        out["null"].append({"seed": seed, "disturbance": dist, "selected": d.selected, "after": d.after,
+                            "seconds": dt, "warnings": rec.warnings})
+    fp = sum(bool(r["selected"]) for r in out["null"])
+    if n_power:
+        print(f"\nCatalogue effects on the first {n_power} draws:")
+        print(f"{'effect':<22}{'seed':>6}  {'selected':<40}{'after/null u':>13}{'s':>6}")
+    for name, planted in POWER_CASES.items():
+        for k in range(n_power):
+            seed = seed0 + k
+            dist = draw_disturbance(seed)
+            rec = read_record(synth_record(tmp / f"p{k}.csv", seed=seed, disturbance=dist, effects=planted),
+                              plausibility="warn")
+            t0 = time.perf_counter()
+            d = diagnose(rec)
+            dt = time.perf_counter() - t0
+            ratio = d.after["rms_u"] / after_null[seed] if seed in after_null else float("nan")
+            print(f"{name:<22}{seed:>6}  {','.join(d.selected) or '-':<40}{ratio:>13.2f}{dt:>6.1f}", flush=True)
+            out["power"].append({"effect": name, "seed": seed, "selected": d.selected, "after_over_null": ratio,
+                                 "seconds": dt})
+    hits = sum(r["selected"][:1] == [r["effect"]] for r in out["power"])
+    print("\n| benchmark | records | rate |\n|---|---|---|")
+    print(f"| false positives (any effect selected on a no-effect record) | {n_null} | {100 * fp / max(n_null, 1):.1f} % |")
+    if out["power"]:
+        print(f"| power (the planted catalogue effect selected first) | {len(out['power'])} | "
+              f"{100 * hits / len(out['power']):.1f} % |")
+    out["false_positive_rate"] = fp / max(n_null, 1)
+    out["power_rate"] = hits / len(out["power"]) if out["power"] else None
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seed", type=int, default=5)
-    ap.add_argument("--json", default=None)
+    ap.add_argument("--seed", type=int, default=5, help="seed of the matrix; first seed of the benchmark")
+    ap.add_argument("--json", default=None, help="write the rows to this JSON file")
+    ap.add_argument("--family", type=int, default=0, metavar="N",
+                    help="run the acceptance benchmark on N no-effect records instead of the matrix")
+    ap.add_argument("--power", type=int, default=5, metavar="M",
+                    help="with --family: each catalogue effect on the first M draws (default 5)")
     a = ap.parse_args()
+    if a.family:
+        with tempfile.TemporaryDirectory() as tmp:
+            res = family(a.family, min(a.power, a.family), a.seed, Path(tmp))
+        if a.json:
+            Path(a.json).write_text(json.dumps(res, indent=2, default=float))
+        return
     rows = []
     print(f"{'record':<26}{'selected':<38}{'estimates':<46}{'before y/u [MU]':<20}{'after y/u [MU]':<20}{'s':>5}")
     with tempfile.TemporaryDirectory() as tmp:

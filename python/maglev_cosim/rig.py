@@ -13,6 +13,12 @@ a real rig has:
   of the weight (air draught, vibration);
 - the paper's PID with its output limits.
 
+The disturbance family is wider than these defaults (``RigConfig`` fields, and
+:func:`maglev_cosim.synth.draw_disturbance` draws from it): white force noise held per sample
+(``tau_F_noise = 0``) or coloured at any corner, a slowly drifting force offset (``F_drift_rel``,
+an Ornstein-Uhlenbeck process with time constant ``tau_drift``), any sensor noise level, and
+converters of 10 to 16 bits (``bits``).
+
 Effects outside the diagnosis catalogue, for honesty tests: ``force_exponent`` (force law
 ``k_c'·i²/(x_0 − x)^n`` with ``k_c'`` keeping the 3.2 mm equilibrium) and ``coulomb_friction``.
 """
@@ -24,7 +30,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-LSB = 1.0 / 2048.0       # [MU] 12-bit converter over ±1 MU
+LSB = 1.0 / 2048.0       # [MU] the default 12-bit converter over ±1 MU (RigConfig.bits)
 
 
 @dataclass(frozen=True)
@@ -59,6 +65,9 @@ class RigConfig:
     sigma_y: float = 2e-4       # [MU] sensor noise
     sigma_F_rel: float = 3e-3   # random force RMS / weight
     tau_F_noise: float = 0.02   # [s] low-pass of the random force
+    F_drift_rel: float = 0.0    # RMS of a slowly drifting force offset / weight
+    tau_drift: float = 3.0      # [s] time constant of the drift
+    bits: int = 12              # converter resolution over +-1 MU
     quantise: bool = True
     seed: int = 0
     extra: dict = field(default_factory=dict)
@@ -157,12 +166,19 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
             a -= fc * math.tanh(vv / 1e-4) / m
         return a
 
-    # random force: low-passed Gaussian, RMS sigma_F
+    # random force: low-passed Gaussian, RMS sigma_F (tau_F_noise = 0: white, held over each sample),
+    # plus a slowly drifting offset (Ornstein-Uhlenbeck), both drawn per sample
     sigma_F = c.sigma_F_rel * mg if noise else 0.0
-    a_lp = math.exp(-ts / c.tau_F_noise)
-    fr = 0.0
+    a_lp = math.exp(-ts / c.tau_F_noise) if c.tau_F_noise > 0 else 0.0
+    sigma_D = c.F_drift_rel * mg if noise else 0.0
+    a_dr = math.exp(-ts / c.tau_drift) if c.tau_drift > 0 else 0.0
+    lsb = 2.0 / 2.0 ** c.bits
     noise_y = rng.standard_normal(n) * (c.sigma_y if noise else 0.0)
     noise_f = rng.standard_normal(n)
+    noise_d = rng.standard_normal(n) if sigma_D > 0 else np.zeros(n)
+    f_col = rng.standard_normal() * sigma_F      # both processes start in their stationary law
+    f_dr = rng.standard_normal() * sigma_D if sigma_D > 0 else 0.0
+    fr = f_col + f_dr
 
     m_delay = int(math.floor(c.T_d / ts + 1e-9))
     r_delay = c.T_d - m_delay * ts
@@ -171,7 +187,7 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     dac = np.empty(n)
     out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
     integral, e_prev = u_hold, 0.0
-    u_hold_q = round(u_hold / LSB) * LSB if c.quantise else u_hold
+    u_hold_q = round(u_hold / lsb) * lsb if c.quantise else u_hold
 
     def dac_at(j: int) -> float:
         return dac[j] if j >= 0 else u_hold_q
@@ -213,7 +229,7 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
         y = c.k_AD * yv + c.y_MU0 + noise_y[k]
         y = min(max(y, -1.0), 1.0)
         if c.quantise:
-            y = round(y / LSB) * LSB
+            y = round(y / lsb) * lsb
         out["y"][k], out["x"][k], out["v"][k], out["i"][k] = y, x, v, i
         e = w[k] - y
         integ = integral + ki * ts * e
@@ -221,10 +237,12 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
         u = min(max(u, u_min), u_max)
         integral, e_prev = integ, e
         if c.quantise:
-            u = round(u / LSB) * LSB
+            u = round(u / lsb) * lsb
         out["u"][k] = u
         dac[k] = u
-        fr = a_lp * fr + math.sqrt(1 - a_lp * a_lp) * sigma_F * noise_f[k]
+        f_col = a_lp * f_col + math.sqrt(1 - a_lp * a_lp) * sigma_F * noise_f[k]
+        f_dr = a_dr * f_dr + math.sqrt(1 - a_dr * a_dr) * sigma_D * noise_d[k]
+        fr = f_col + f_dr
         # the delayed D/A value switches at t_k + r_delay inside this sample
         if r_delay > 0:
             n1 = max(1, int(round(nsub * r_delay / ts)))

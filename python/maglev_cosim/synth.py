@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from .record import write_record
 from . import rig as _rig
 from .rig import RigConfig, simulate_rig
@@ -50,10 +52,70 @@ def parse_effect_spec(spec: str) -> tuple[str, dict[str, float]]:
     return name, values
 
 
+#: The disturbance family the acceptance benchmark draws from (issue 7): its ranges.
+FAMILY = {
+    "sigma_y": (1e-4, 1.5e-3),         # [MU] sensor noise, log-uniform
+    "sigma_F_rel": (1e-3, 1e-2),       # random force RMS / weight, log-uniform
+    "corner_hz": (5.0, 50.0),          # corner of the coloured force noise, log-uniform; or white
+    "F_drift_rel": (0.0, 3e-3),        # drifting force offset RMS / weight (half the draws have none)
+    "tau_drift": (1.0, 5.0),           # [s]
+    "bits": (10, 14),
+    "kp": (1.5, 3.0), "ki": (1.0, 6.0), "kd": (0.006, 0.014),   # PID gains, kept when the loop is stable
+}
+DISTURBANCE_KEYS = ("sigma_y", "sigma_F_rel", "tau_F_noise", "F_drift_rel", "tau_drift", "bits")
+
+
+def draw_disturbance(seed: int, *, gains: bool = True) -> dict[str, float]:
+    """One draw from the disturbance family :data:`FAMILY`: rig noise settings (``sigma_y``,
+    ``sigma_F_rel``, ``tau_F_noise`` (0: white), ``F_drift_rel``, ``tau_drift``, ``bits``) and, with
+    ``gains``, PID gains ``kp``, ``ki``, ``kd`` whose linear loop is stable and damped (every
+    closed-loop pole inside the unit circle, complex pairs with a damping ratio of at least 0.15,
+    at 2.0, 3.2 and 4.5 mm on the baseline plant)."""
+    rng = np.random.default_rng([seed, 7])
+
+    def logu(lo: float, hi: float) -> float:
+        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+    f = FAMILY
+    d: dict[str, float] = {
+        "sigma_y": logu(*f["sigma_y"]),
+        "sigma_F_rel": logu(*f["sigma_F_rel"]),
+        "tau_F_noise": 0.0 if rng.uniform() < 0.25 else 1.0 / (2 * np.pi * logu(*f["corner_hz"])),
+        "F_drift_rel": float(rng.uniform(*f["F_drift_rel"])) if rng.uniform() < 0.5 else 0.0,
+        "tau_drift": float(rng.uniform(*f["tau_drift"])),
+        "bits": int(rng.integers(f["bits"][0], f["bits"][1] + 1)),
+    }
+    if gains:
+        from .analysis import discrete_closed_loop
+        from .params import get_params
+        from .pid import PID
+
+        p = get_params("baseline")
+
+        def damped(pid: PID, x: float) -> bool:
+            z = np.asarray(discrete_closed_loop(p, x, pid, None).poles()).astype(complex)
+            if np.max(np.abs(z)) >= 1.0:
+                return False
+            s_ = np.log(z) / pid.ts
+            pairs = s_[np.abs(s_.imag) > 1e-6]
+            return not len(pairs) or float(np.min(-pairs.real / np.abs(pairs))) >= 0.15
+
+        for _ in range(100):
+            kp, ki, kd = (float(rng.uniform(*f[k])) for k in ("kp", "ki", "kd"))
+            if all(damped(PID(kp=kp, ki=ki, kd=kd), x) for x in (2.0e-3, 3.2e-3, 4.5e-3)):
+                d.update(kp=kp, ki=ki, kd=kd)
+                break
+    return d
+
+
 def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = None, reference: str = "steps", duration: float = 12.0, seed: int = 0, noise: bool = True,
                  params: dict[str, float] | None = None, ts: float = 1e-3, kp: float = 2.0, ki: float = 2.97,
-                 kd: float = 0.01, u_min: float = 0.0, u_max: float = 1.0) -> Path:
-    """Simulates the rig and writes a record at ``out`` (and ``out.truth.json``)."""
+                 kd: float = 0.01, u_min: float = 0.0, u_max: float = 1.0,
+                 disturbance: dict[str, float] | None = None) -> Path:
+    """Simulates the rig and writes a record at ``out`` (and ``out.truth.json``).
+
+    ``disturbance``: rig noise settings (:data:`DISTURBANCE_KEYS`, e.g. from
+    :func:`draw_disturbance`) over the emulator's defaults; PID gains in it override ``kp``, ``ki``, ``kd``."""
     kind = reference
     effects = effects or {}
     values: dict[str, float] = {}
@@ -67,7 +129,14 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     for k in params or {}:
         if k not in PLANT_PARAMS:
             raise ValueError(f"unknown plant parameter {k!r}: choose from {', '.join(PLANT_PARAMS)}")
-    cfg = RigConfig().with_values(**{**(params or {}), **values}, seed=seed)
+    dist = dict(disturbance or {})
+    kp, ki, kd = (float(dist.pop(k, v)) for k, v in (("kp", kp), ("ki", ki), ("kd", kd)))
+    bad = sorted(set(dist) - set(DISTURBANCE_KEYS))
+    if bad:
+        raise ValueError(f"unknown disturbance setting(s) {', '.join(bad)}: choose from {', '.join(DISTURBANCE_KEYS)}")
+    if "bits" in dist:
+        dist["bits"] = int(dist["bits"])
+    cfg = RigConfig().with_values(**{**(params or {}), **values, **dist}, seed=seed)
     if not noise:
         cfg = cfg.with_values(sigma_y=0.0, sigma_F_rel=0.0)
     w = _rig.reference(kind, duration, ts, seed)
@@ -76,6 +145,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     write_record(out, sim["t"], sim["w"], sim["u"], sim["y"], ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max,
                  meta={"reference": kind, "seed": str(seed), "source": "maglev-cosim synth (rig emulator)"})
     truth = {"effects": effects, "params": params or {}, "noise": noise, "seed": seed, "reference": kind,
-             "duration": duration, "sigma_y": cfg.sigma_y, "sigma_F_rel": cfg.sigma_F_rel}
+             "duration": duration, "pid": {"kp": kp, "ki": ki, "kd": kd},
+             "disturbance": {k: getattr(cfg, k) for k in DISTURBANCE_KEYS}}
     Path(str(out) + ".truth.json").write_text(json.dumps(truth, indent=2))
     return out

@@ -153,16 +153,31 @@ class PeriodicDisturbance(Effect):
         sim = prob.simulate(current)
         peaks = spectral_peaks(prob.rec.u - sim["u"], prob.rec.ts, count=2)
         peaks += spectral_peaks(prob.rec.y - sim["y"], prob.rec.ts, count=1)
-        out = [[0.01 * math.cos(ph), 0.01 * math.sin(ph), p["f"]]
-               for p in peaks for ph in (0.0, math.pi / 2, math.pi, -math.pi / 2)]
+        out = [[0.01 * ca, 0.01 * sa, p["f"]] for p in peaks for ca, sa in ((1, 0), (0, 1), (-1, 0), (0, -1))]
         return out or [[0.0, 0.0, 50.0]]
 
     def prefit(self, prob: Problem, current: Mapping[str, float], z: list[float]) -> list[float]:
-        """Amplitude and phase first at the start's frequency (a nearly linear problem)."""
-        from .problem import fit
+        """Amplitude and phase first at the start's frequency: the loop's response to a small
+        pickup is nearly linear in (a, b), so two replays with a 1 mV pickup in cosine and sine
+        phase give a linear least-squares estimate, which a short nonlinear fit then polishes.
+        (A trust-region fit started from the phase grid alone can stall at a = b = 0.)"""
+        from .problem import fit, residuals
 
         fixed = prob.with_base({**current, "f_d": z[2]})
-        pre = fit(fixed, [_AmplitudePhase()], [z[:2]], max_nfev=20)
+        a0, b0 = (float(v) for v in self.to_coords({"A_d": current.get("A_d", 0.0),
+                                                    "phi_d": current.get("phi_d", 0.0), "f_d": z[2]})[:2])
+        step = 1e-3
+
+        def res(a: float, b: float) -> np.ndarray:
+            return residuals(fixed, {"A_d": math.hypot(a, b), "phi_d": math.atan2(b, a)})
+
+        r0 = res(a0, b0)
+        jac = np.column_stack([(res(a0 + step, b0) - r0) / step, (res(a0, b0 + step) - r0) / step])
+        (da, db), *_ = np.linalg.lstsq(jac, -r0, rcond=None)
+        lin = [float(np.clip(a0 + da, -1.0, 1.0)), float(np.clip(b0 + db, -1.0, 1.0))]
+        cost = lambda ab: float(np.mean(res(*ab) ** 2))  # noqa: E731
+        start = lin if cost(lin) < cost(z[:2]) else list(z[:2])
+        pre = fit(fixed, [_AmplitudePhase()], [start], max_nfev=20)
         return self.to_coords({**pre.values, "f_d": z[2]})[:2] + [z[2]]
 
 
