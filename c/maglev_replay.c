@@ -3,6 +3,7 @@
 
 #include <math.h>
 #include <stdio.h>
+#include <string.h>
 
 #include "maglev_plant.h"
 
@@ -199,6 +200,237 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
             break;
         }
         t += ts;
+    }
+    maglev_release(&m, &maglev_std_allocator);
+    return rc;
+}
+
+/* ---- prediction-error replay: the extended Kalman filter (maglev_replay.h) ---- */
+
+#define NS 5 /* x, v, i, F, d */
+#define JAC_EVERY 10
+
+static void get_state(const MaglevPlant *m, double d, double s[NS]) {
+    s[0] = m->x;
+    s[1] = m->v;
+    s[2] = m->i;
+    s[3] = m->F;
+    s[4] = d;
+}
+
+/* Puts a filtered state into the plant: the ball between the stops and free (the plant finds an
+ * impact again if it presses on a stop), the current within the amplifier's range. */
+static void put_state(MaglevPlant *m, const double s[NS]) {
+    double lo = maglev_param(m, VR_x_min), hi = maglev_param(m, VR_x_max);
+    m->x = s[0] < lo ? lo : (s[0] > hi ? hi : s[0]);
+    m->v = s[1];
+    if (maglev_param(m, VR_T_a) > 0) {
+        double imax = maglev_param(m, VR_i_max);
+        m->i = s[2] < 0 ? 0 : (s[2] > imax ? imax : s[2]);
+    }
+    if (maglev_param(m, VR_T_F) > 0) m->F = s[3];
+    m->contact = CONTACT_NONE;
+}
+
+/* One sample of the model from plant state m with input u and disturbance force d held over it:
+ * the plant step, then d's effect on the ball (exact for a force held constant: it adds linearly
+ * to the mechanics, whatever the plant does). Works on a copy; the result goes to out. */
+static int model_step(const MaglevPlant *m, double u, double d, double ts, MaglevPlant *out, char *msg,
+                      size_t len) {
+    if (maglev_copy(out, m, &maglev_std_allocator)) {
+        snprintf(msg, len, "out of memory in the prediction-error replay");
+        return -1;
+    }
+    if (maglev_set_input(out, u, &maglev_std_allocator, msg, len) ||
+        maglev_step(out, ts, &maglev_std_allocator, msg, len)) {
+        maglev_release(out, &maglev_std_allocator);
+        return -1;
+    }
+    if (d != 0.0) {
+        double acc = d / maglev_param(m, VR_m_k);
+        out->contact = CONTACT_NONE;
+        out->x += 0.5 * acc * ts * ts;
+        out->v += acc * ts;
+        double lo = maglev_param(m, VR_x_min), hi = maglev_param(m, VR_x_max);
+        if (out->x < lo) { out->x = lo; out->v = 0; }
+        if (out->x > hi) { out->x = hi; out->v = 0; }
+    }
+    return 0;
+}
+
+static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
+    if (!f || !(f->q_force > 0) || !isfinite(f->q_force) || !(f->f_force > 0) || !isfinite(f->f_force) ||
+        !(f->r_sensor > 0) || !isfinite(f->r_sensor) || f->horizon < 0 || f->stride < 1) {
+        snprintf(msg, len, "invalid filter settings (q_force > 0 N, f_force > 0 Hz, r_sensor > 0 MU, "
+                 "horizon >= 0, stride >= 1)");
+        return -1;
+    }
+    return 0;
+}
+
+int maglev_replay_predict(const double *params, const MaglevPid *pid, const MaglevFilter *f, const double *w,
+                          const double *y, const double *u, size_t n, double u_hold, double *y_pred,
+                          double *u_pred, double *innov, double *innov_var, char *msg, size_t len) {
+    MaglevPlant m;
+    if (pid_check(pid, u_hold, msg, len) || filter_check(f, msg, len)) return -1;
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(w[k]) || !isfinite(y[k]) || !isfinite(u[k])) {
+            snprintf(msg, len, "w[%zu], y[%zu] or u[%zu] is not finite", k, k, k);
+            return -1;
+        }
+        if (y_pred) y_pred[k] = NAN;
+        if (u_pred) u_pred[k] = NAN;
+        if (innov) innov[k] = NAN;
+        if (innov_var) innov_var[k] = NAN;
+    }
+    if (setup(&m, params, u_hold, msg, len)) {
+        maglev_release(&m, &maglev_std_allocator);
+        return -1;
+    }
+    const double ts = pid->ts, mk = maglev_param(&m, VR_m_k), mg = mk * maglev_param(&m, VR_g);
+    const double a = exp(-6.283185307179586 * f->f_force * ts), r2 = f->r_sensor * f->r_sensor;
+    const int active[NS] = {1, 1, maglev_param(&m, VR_T_a) > 0, maglev_param(&m, VR_T_F) > 0, 1};
+    const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg};
+    /* process noise besides d's own: tiny, to keep the lags' covariance well conditioned */
+    const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0};
+    double P[NS][NS] = {{0}};
+    double dv_dx;
+    maglev_sensor_volts(&m, m.x, &dv_dx);
+    double slope = maglev_param(&m, VR_k_AD) * dv_dx;
+    P[0][0] = r2 / (slope * slope) + 1e-10;
+    P[1][1] = 1e-6;
+    P[2][2] = active[2] ? 1e-4 : 0;
+    P[3][3] = active[3] ? 1e-4 * mg * mg : 0;
+    P[4][4] = f->q_force * f->q_force;
+    double d = 0.0, A[NS][NS] = {{0}};
+    PidState ps = {u_hold, 0.0, 0.0};
+    int rc = 0;
+    for (size_t k = 0; k < n && rc == 0; k++) {
+        m.time = (double)k * ts;
+        /* measurement update with y[k] */
+        double yhat = maglev_get(&m, VR_y);
+        if (fabs(yhat) < 1.0 && fabs(y[k]) < 1.0) {
+            double h = 1e-7, H = (maglev_reading(&m, m.x + h, m.time) - maglev_reading(&m, m.x - h, m.time)) / (2 * h);
+            double S = H * H * P[0][0] + r2, e = y[k] - yhat, K[NS], s[NS];
+            if (innov) innov[k] = e;
+            if (innov_var) innov_var[k] = S;
+            for (int i = 0; i < NS; i++) K[i] = P[i][0] * H / S;
+            get_state(&m, d, s);
+            for (int i = 0; i < NS; i++) s[i] += K[i] * e;
+            put_state(&m, s);
+            d = s[4];
+            /* Joseph form: P = (I - K H) P (I - K H)' + K r2 K' */
+            double IKH[NS][NS], T[NS][NS];
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) IKH[i][j] = (i == j) - (j == 0 ? K[i] * H : 0.0);
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) {
+                    double acc = 0;
+                    for (int l = 0; l < NS; l++) acc += IKH[i][l] * P[l][j];
+                    T[i][j] = acc;
+                }
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) {
+                    double acc = 0;
+                    for (int l = 0; l < NS; l++) acc += T[i][l] * IKH[j][l];
+                    P[i][j] = acc + K[i] * r2 * K[j];
+                }
+        }
+        /* the controller, on the measured reading: its state for the predictions */
+        (void)pid_step(pid, &ps, w[k], y[k]);
+        /* prediction from here */
+        if (f->horizon > 0 && k % (size_t)f->stride == 0 && k + (size_t)f->horizon < n) {
+            MaglevPlant cur, nxt;
+            PidState pp = ps;
+            double dd = d, uin = u[k], yj = 0.0;
+            if (maglev_copy(&cur, &m, &maglev_std_allocator)) {
+                snprintf(msg, len, "out of memory in the prediction-error replay");
+                rc = -1;
+                break;
+            }
+            for (int j = 1; j <= f->horizon; j++) {
+                cur.time = (double)(k + (size_t)j - 1) * ts;
+                if (model_step(&cur, uin, dd, ts, &nxt, msg, len)) {
+                    rc = -1;
+                    break;
+                }
+                maglev_release(&cur, &maglev_std_allocator);
+                cur = nxt;
+                dd *= a;
+                cur.time = (double)(k + (size_t)j) * ts;
+                yj = maglev_get(&cur, VR_y);
+                uin = pid_step(pid, &pp, w[k + (size_t)j], yj);
+            }
+            maglev_release(&cur, &maglev_std_allocator);
+            if (rc) break;
+            if (y_pred) y_pred[k + (size_t)f->horizon] = yj;
+            if (u_pred) u_pred[k + (size_t)f->horizon] = uin;
+        }
+        /* time update: the nominal step, and its Jacobian by finite differences; the Jacobian
+         * changes slowly along a levitating record, so it is refreshed every JAC_EVERY samples
+         * (and whenever the ball touches a stop), which makes the filter about three times cheaper */
+        MaglevPlant nom, pert;
+        double s0[NS], s1[NS];
+        get_state(&m, d, s0);
+        if (model_step(&m, u[k], d, ts, &nom, msg, len)) {
+            rc = -1;
+            break;
+        }
+        get_state(&nom, a * d, s1);
+        int refresh = k % JAC_EVERY == 0 || nom.contact != CONTACT_NONE || m.contact != CONTACT_NONE;
+        for (int j = 0; j < NS && rc == 0 && refresh; j++) {
+            if (!active[j]) continue;
+            if (j == 4) { /* d enters the mechanics linearly (model_step), and decays by a */
+                A[0][4] = 0.5 * ts * ts / mk;
+                A[1][4] = ts / mk;
+                A[4][4] = a;
+                continue;
+            }
+            double sp[NS];
+            memcpy(sp, s0, sizeof sp);
+            sp[j] += delta[j];
+            MaglevPlant base;
+            if (maglev_copy(&base, &m, &maglev_std_allocator)) {
+                snprintf(msg, len, "out of memory in the prediction-error replay");
+                rc = -1;
+                break;
+            }
+            put_state(&base, sp);
+            if (model_step(&base, u[k], d, ts, &pert, msg, len)) {
+                maglev_release(&base, &maglev_std_allocator);
+                rc = -1;
+                break;
+            }
+            double s2[NS];
+            get_state(&pert, a * d, s2);
+            for (int i = 0; i < 4; i++) A[i][j] = (s2[i] - s1[i]) / delta[j];
+            maglev_release(&base, &maglev_std_allocator);
+            maglev_release(&pert, &maglev_std_allocator);
+        }
+        maglev_release(&m, &maglev_std_allocator);
+        m = nom;
+        d = a * d;
+        if (rc) break;
+        double AP[NS][NS];
+        for (int i = 0; i < NS; i++)
+            for (int j = 0; j < NS; j++) {
+                double acc = 0;
+                for (int l = 0; l < NS; l++) acc += A[i][l] * P[l][j];
+                AP[i][j] = acc;
+            }
+        for (int i = 0; i < NS; i++)
+            for (int j = 0; j < NS; j++) {
+                double acc = 0;
+                for (int l = 0; l < NS; l++) acc += AP[i][l] * A[j][l];
+                P[i][j] = active[i] && active[j] ? acc : 0.0;
+            }
+        for (int i = 0; i < NS; i++) P[i][i] += active[i] ? q_extra[i] : 0.0;
+        P[4][4] += f->q_force * f->q_force * (1.0 - a * a);
+        for (int i = 0; i < NS; i++)
+            if (!isfinite(P[i][i])) {
+                snprintf(msg, len, "the filter diverged at sample %zu", k);
+                rc = -1;
+            }
     }
     maglev_release(&m, &maglev_std_allocator);
     return rc;

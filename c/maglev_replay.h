@@ -29,6 +29,30 @@ int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const 
                               double u_hold, double *u, double *y, double *x, double *v, double *i,
                               char *msg, size_t msglen);
 
+/* Prediction-error replay: an extended Kalman filter on the plant above, driven by the measured
+ * input u, corrects the state with each measured reading y, and from every stride-th sample
+ * predicts the closed loop horizon samples ahead (plant + PID on the predicted readings, the
+ * first input being the measured u[k]). The disturbance is part of the model: a random force d
+ * on the ball, a first-order Gauss-Markov process (RMS q_force, corner f_force: d[k+1] =
+ * a*d[k] + w[k], a = exp(-2*pi*f_force*ts)), and white sensor noise of RMS r_sensor. The EKF
+ * state is (x, v, i, F, d); i and F take part only when their lags T_a, T_F are on. */
+typedef struct {
+    double q_force;  /* [N] RMS of the random force on the ball (> 0) */
+    double f_force;  /* [Hz] its corner frequency (> 0; large: white) */
+    double r_sensor; /* [MU] RMS of the sensor noise (> 0) */
+    int horizon;     /* [samples] prediction horizon (>= 1), or 0: filter only */
+    int stride;      /* a prediction from every stride-th sample (>= 1) */
+} MaglevFilter;
+
+/* y_pred[k], u_pred[k]: the predictions of y[k] and u[k] made at k - horizon (NaN where none was
+ * made); innov[k] = y[k] - (its one-step prediction), innov_var[k] its variance [MU^2] (NaN
+ * where the reading sat at the converter's limit and was not used). Any output may be NULL.
+ * Returns 0, or -1 with a message. */
+int maglev_replay_predict(const double *params, const MaglevPid *pid, const MaglevFilter *filter,
+                          const double *w, const double *y, const double *u, size_t n, double u_hold,
+                          double *y_pred, double *u_pred, double *innov, double *innov_var,
+                          char *msg, size_t msglen);
+
 /* The plant driven by a given input sequence; y[k] is read at t_k before u_in[k] is applied;
  * u_in[0] is also the input before t = 0. */
 int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, double ts, double *y,

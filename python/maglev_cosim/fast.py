@@ -135,6 +135,35 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
     return {"t": np.arange(n) * pid.ts, "w": w, **out}
 
 
+def predict(params: PlantParams | Mapping[str, float] | None, pid: PID, w: np.ndarray, y: np.ndarray,
+            u: np.ndarray, u_hold: float, *, q_force: float, f_force: float, r_sensor: float, horizon: int,
+            stride: int = 1) -> dict[str, np.ndarray]:
+    """The prediction-error replay in one C call (``maglev_replay_predict``, ``c/maglev_replay.h``):
+    an extended Kalman filter on the plant, driven by the measured ``u`` and corrected by the
+    measured ``y`` [MU], predicting the closed loop ``horizon`` samples ahead from every
+    ``stride``-th sample. ``q_force`` [N] and ``f_force`` [Hz]: RMS and corner of the random force
+    on the ball; ``r_sensor`` [MU]: RMS of the sensor noise. Returns arrays ``y_pred``, ``u_pred``
+    (NaN where no prediction ends), ``innov`` and ``innov_var`` (one-step innovations [MU] and
+    their variances [MU²])."""
+    m = _lib()
+    pv = _param_vector(_as_mapping(params))
+    arrays = [np.ascontiguousarray(a, dtype=float) for a in (w, y, u)]
+    n = len(arrays[0])
+    if any(len(a) != n for a in arrays):
+        raise ValueError("w, y and u must have the same length")
+    out = {k: np.empty(n) for k in ("y_pred", "u_pred", "innov", "innov_var")}
+    filt = m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
+                                        "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride)})
+    msg = m.ffi.new("char[256]")
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    rc = m.lib.maglev_replay_predict(ptr(pv), m.ffi.new("MaglevPid *", pid.c_settings()), filt,
+                                     *(ptr(a) for a in arrays), n, float(u_hold),
+                                     *(ptr(out[k]) for k in ("y_pred", "u_pred", "innov", "innov_var")), msg, 256)
+    if rc != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return out
+
+
 def pid_only(pid: PID, w: np.ndarray, y: np.ndarray, u_hold: float) -> np.ndarray:
     """The C PID alone over given ``w`` and ``y`` [MU], settled at ``u_hold`` [MU]: its outputs [MU]."""
     m = _lib()

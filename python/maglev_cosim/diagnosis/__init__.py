@@ -5,6 +5,7 @@ effect the model lacks, add it, and report the error before and after.
 - :mod:`.problem`: the fit problem and least squares over parameterizations;
 - :mod:`.residual`: describing a residual, and the noise floor of a record;
 - :mod:`.acceptance`: the held-out likelihood-ratio test;
+- :mod:`.verdict`: free-run and k-step prediction fits, the innovations' predictable share, the verdict;
 - :mod:`.pipeline`: the stages and :func:`diagnose`.
 """
 

@@ -80,6 +80,12 @@ class Effect(Parameterization):
         """A cheap refinement of the chosen start before the joint fit (none by default)."""
         return z
 
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        """Whether fitted ``values`` leave the effect practically off: such a fit cannot be
+        credited with a gain, which then comes from elsewhere (the baseline's recalibration, or
+        in prediction mode the filter's extra state)."""
+        return False
+
 
 class _TimeConstant(Effect):
     """A lag or a delay: one time constant. Near the stability limit the replay error is far from
@@ -88,6 +94,10 @@ class _TimeConstant(Effect):
     def __init__(self, name: str, param: str, lo: float, description: str) -> None:
         self.name, self.description, self.params = name, description, (param,)
         self.coords = (Coord(param, 1e-3, lo, 0.05),)
+
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        """At most 20 us above the lower bound: 2 % of a 1 kHz sample."""
+        return values[self.params[0]] <= self.coords[0].lo + 2e-5
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         lo = max(self.coords[0].lo, 2.5e-4)
@@ -99,6 +109,10 @@ class SensorNonlinearity(Effect):
     description = "the sensor's deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12"
     params = ("k_x2",)
     coords = (Coord("k_x2", 1e4, -1e6, 1e6),)
+
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        """Below 100 V/m²: a deviation under 0.3 um of position over the travel."""
+        return abs(values["k_x2"]) < 100.0
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         return [[float(v)] for v in np.linspace(-6e4, 6e4, 24)]     # 0 excluded: the fit starts off it
@@ -123,9 +137,13 @@ class CurrentSaturation(Effect):
     params = ("i_max",)
     coords = (Coord("i_max", 0.05, 0.2, 1.5),)
 
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        """Within 1 % of the 1.5 A the D/A range implies."""
+        return values["i_max"] >= 0.99 * self.coords[0].hi
+
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         """Just below the record's peak demand: the cost is flat for limits above it."""
-        i = np.sort(prob.simulate(current)["i"])
+        i = np.sort(prob.free_run(current)["i"])
         return [[float(i[int(q * (len(i) - 1))])] for q in (0.9999, 0.999, 0.995, 0.99, 0.98, 0.95, 0.9, 0.8, 0.7)]
 
 
@@ -148,9 +166,13 @@ class PeriodicDisturbance(Effect):
     def uncertainty_scales(self) -> dict[str, float]:
         return {"A_d": 0.01, "f_d": 0.01, "phi_d": 1.0}
 
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        """Below 10 uV on the sensor voltage: 2 uMU at the A/D."""
+        return values["A_d"] < 1e-5
+
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         """At the residual's spectral peaks, four phases each."""
-        sim = prob.simulate(current)
+        sim = prob.free_run(current)
         peaks = spectral_peaks(prob.rec.u - sim["u"], prob.rec.ts, count=2)
         peaks += spectral_peaks(prob.rec.y - sim["y"], prob.rec.ts, count=1)
         out = [[0.01 * ca, 0.01 * sa, p["f"]] for p in peaks for ca, sa in ((1, 0), (0, 1), (-1, 0), (0, -1))]

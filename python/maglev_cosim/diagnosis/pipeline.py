@@ -18,16 +18,18 @@ import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..record import Record
-from ..replay import baseline_params
+from ..metrics import nrmse_fit
+from ..replay import HORIZON_S, baseline_params, estimate_noise
 from .acceptance import BLOCK, CRITERION, accept
 from .effects import BASELINE, CATALOGUE, Parameterization
+from .verdict import Verdict, conclude
 from .problem import Problem, cost_on, fit, residuals
 from .residual import analyse_residual, effective_samples, noise_floor
 
@@ -56,10 +58,25 @@ class Diagnosis:
     sims: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     unexplained: dict = field(default_factory=dict)
     record_warnings: list[str] = field(default_factory=list)
+    verdict: Verdict | None = None
+    fit_mode: str = "free run"       # which errors the fits minimised: "free run" or "prediction"
+
+    @property
+    def warnings(self) -> list[str]:
+        """Everything the reader of the report should know first: the record's plausibility, the
+        verdict's findings, weak choices."""
+        out = list(self.record_warnings) + (list(self.verdict.warnings) if self.verdict else [])
+        out += [f"in round {a['round']} {a['rival']} explains nearly as much as {a['chosen']}: the record does not "
+                "separate the two well" for a in self.unexplained.get("ambiguous", [])]
+        return out
 
     def to_json(self) -> dict:
+        head = {"verdict": self.verdict.verdict, "fit": self.verdict.fit, "fit_before": self.verdict.fit_before,
+                "warnings": self.warnings} if self.verdict else {}
         return {
+            **head,
             "record": self.record,
+            "fit_mode": self.fit_mode,
             "record_warnings": self.record_warnings,
             "before": self.before,
             "after": self.after,
@@ -76,6 +93,9 @@ class Diagnosis:
             "noise_floor": self.noise,
             "unexplained": self.unexplained,
             "elapsed_s": self.elapsed,
+            **({"noise_model": self.verdict.noise.to_json(), "noise_model_before": self.verdict.noise_before.to_json(),
+                "innovations_predictable_share": self.verdict.predictable_share,
+                "location_evidence": self.verdict.location_evidence} if self.verdict else {}),
         }
 
 
@@ -83,6 +103,10 @@ def rms(rec: Record, sim: Mapping[str, np.ndarray]) -> dict[str, float]:
     """RMS of measured minus simulated y and u [MU]."""
     return {"rms_y": float(np.sqrt(np.mean((rec.y - sim["y"]) ** 2))),
             "rms_u": float(np.sqrt(np.mean((rec.u - sim["u"]) ** 2)))}
+
+
+#: Free-run fit of y [%] below which the fits use the k-step prediction instead (prediction mode).
+FREE_RUN_MIN_FIT = 90.0
 
 
 # ----------------------------------------------------------------------------- 0. where to start
@@ -120,17 +144,39 @@ def calibrate(rec: Record, base: dict[str, float], fit_mask: np.ndarray, say: Sa
     the y and u errors by the calibrated baseline's RMS."""
     say("replaying the record on the baseline model (Section 3, T_a = 0)")
     prob = Problem(rec, base, 1.0, 1.0, fit_mask)
-    sim0 = prob.simulate({})
+    sim0 = prob.free_run({})
     raw = rms(rec, sim0)
     say(f"calibrating {', '.join(BASELINE.params)} (raw replay error: rms_y {raw['rms_y']:.5f} MU, "
         f"rms_u {raw['rms_u']:.5f} MU)")
     prob = Problem(rec, base, max(raw["rms_y"], 1e-6), max(raw["rms_u"], 1e-6), fit_mask)
     cal = fit(prob, [BASELINE], [BASELINE.to_coords(base)])
-    sim = prob.simulate(cal.values)
+    sim = prob.free_run(cal.values)
     before = rms(rec, sim)
     say(f"calibrated baseline: rms_y {before['rms_y']:.5f} MU, rms_u {before['rms_u']:.5f} MU")
     prob = Problem(rec, base, max(before["rms_y"], 1e-6), max(before["rms_u"], 1e-6), fit_mask)
-    return Calibration(prob, dict(cal.values), sim0, sim)
+    fit_y = nrmse_fit(rec.y, sim["y"])
+    if fit_y >= FREE_RUN_MIN_FIT:
+        return Calibration(prob, dict(cal.values), sim0, sim)
+    # The free run cannot follow the record (a loop that rings, a disturbance that drives it): fit
+    # the k-step prediction of a filter that follows the measured past instead (prediction mode).
+    say(f"the free run follows y by only {fit_y:.1f} % (below {FREE_RUN_MIN_FIT:.0f} %): fitting the "
+        f"{HORIZON_S * 1e3:.0f} ms prediction of a Kalman filter instead; estimating the disturbances first")
+    noise = estimate_noise(rec, {**base, **cal.values})
+    pprob = Problem(rec, base, 1.0, 1.0, fit_mask, noise=noise)
+    pprob = _weighted(pprob, cal.values)
+    cal = fit(pprob, [BASELINE], [BASELINE.to_coords({**base, **cal.values})])
+    sim = prob.free_run(cal.values)
+    pprob = _weighted(pprob, cal.values)
+    say(f"calibrated baseline (prediction mode): k-step rms_y {pprob.sigma_y:.5f} MU, rms_u {pprob.sigma_u:.5f} MU")
+    return Calibration(pprob, dict(cal.values), sim0, sim)
+
+
+def _weighted(prob: Problem, values: Mapping[str, float]) -> Problem:
+    """``prob`` weighted by the RMS of the errors ``values`` leave on the compared samples."""
+    sim, ok = prob.simulate(values), prob.compared()
+    sy = float(np.sqrt(np.mean((prob.rec.y - sim["y"])[ok] ** 2)))
+    su = float(np.sqrt(np.mean((prob.rec.u - sim["u"])[ok] ** 2)))
+    return replace(prob, sigma_y=max(sy, 1e-6), sigma_u=max(su, 1e-6))
 
 
 # ----------------------------------------------------------------------------- 2. search
@@ -165,7 +211,10 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
     n_eff = min(effective_samples(r_hold[:half]), effective_samples(r_hold[half:]))
     eff = CATALOGUE[res["effect"]]
     ok, stats = accept(hold_before, hold_after, n_eff, len(eff.params))
-    errs = rms(prob.rec, prob.simulate(vals))
+    if eff.is_off(vals):
+        ok = False
+        stats = {**stats, "off": True}
+    errs = rms(prob.rec, prob.free_run(vals))
     entry = {"effect": res["effect"], "round": rnd, "parameters": {p: vals[p] for p in eff.params}, **errs,
              "accepted": ok, "held_out_cost_before": hold_before, "held_out_cost_after": hold_after, **stats,
              "calibrated": {n: vals[n] for n in BASELINE.params}}
@@ -216,7 +265,11 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             entry, vals = min(accepted, key=lambda r: r[0]["held_out_cost_after"])
             entry["selected"] = True
             selected.append(entry["effect"])
-            current = dict(vals)
+            # the model of the next round, fitted to convergence: else a candidate of the next round
+            # is credited with what merely finishing this fit gains
+            parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in selected)]
+            conv = fit(prob.with_base(vals), parts, [p.to_coords(vals) for p in parts], max_nfev=100)
+            current = {**vals, **conv.values}
             say(f"round {rnd}: added {entry['effect']}")
     finally:
         if pool:
@@ -249,13 +302,36 @@ def uncertainty(prob: Problem, values: Mapping[str, float], steps: Mapping[str, 
     return {n: float(math.sqrt(max(cov[k, k], 0.0)) * sc[k]) for k, n in enumerate(names)}
 
 
-def refit(prob: Problem, current: dict[str, float], selected: Sequence[str], say: Say) -> tuple[dict, dict]:
-    """The final model refitted on the whole record: its values and their uncertainties."""
+def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Say) -> tuple[dict, dict]:
+    """The final model refitted on the whole record: its values and their uncertainties. An
+    effect the refit turns off (:meth:`~.effects.Effect.is_off`) leaves the model (``selected``
+    is updated in place) and the rest is refitted without it."""
+    values, unc = _refit(prob, current, selected, say)
+    dropped = [e for e in selected if CATALOGUE[e].is_off(values)]
+    if dropped:
+        say(f"the refit turned {', '.join(dropped)} off: refitting without it")
+        for e in dropped:
+            selected.remove(e)
+            current = {**current, **{p: prob.base[p] for p in CATALOGUE[e].params}}
+        values, unc = _refit(prob, current, selected, say)
+    return values, unc
+
+
+def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], say: Say) -> tuple[dict, dict]:
     say(f"refitting the final model ({', '.join(selected) or 'baseline only'}) on the whole record")
     whole = prob.with_mask(np.ones(prob.rec.n, bool))
     parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in selected)]
     final = fit(whole, parts, [p.to_coords(current) for p in parts], max_nfev=40)
     values = {**current, **final.values}
+    if prob.noise is not None:
+        # Prediction mode: polish by the prediction-error criterion proper (one-step errors, the
+        # disturbances re-estimated for the model at hand): near instability the k-step fit leaves
+        # the parameters a little off, and the loop's ringing magnifies such errors.
+        say("polishing by the one-step prediction error (PEM), disturbances re-estimated")
+        pem = replace(whole, noise=estimate_noise(prob.rec, values), horizon_s=prob.rec.ts, stride=1)
+        pem = _weighted(pem, values)
+        final = fit(pem, parts, [p.to_coords(values) for p in parts], max_nfev=30)
+        values = {**values, **final.values}
     say("estimating parameter uncertainties")
     steps = {k: v for p in parts for k, v in p.uncertainty_scales().items()}
     return values, uncertainty(whole, values, steps)
@@ -340,11 +416,17 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
     cal = calibrate(rec, base, fit_mask, say)
     found = search(cal.prob, dict(cal.values), effects, ~fit_mask, workers, say)
     final_values, unc = refit(cal.prob, found.values, found.selected, say)
-    sim_after = cal.prob.simulate(final_values)
+    sim_after = cal.prob.free_run(final_values)
     before, after = rms(rec, cal.sim), rms(rec, sim_after)
     residual_after = analyse_residual(rec, sim_after)
     noise = noise_floor(rec)
     unexplained = summarise(rec, after, residual_after, noise, found.candidates, found.rounds)
+    final = {**base, **final_values}
+    verdict = conclude(rec, {**base, **cal.values}, final, {"before": cal.sim, "after": sim_after}, found.selected,
+                       found.candidates, say)
+    say(f"verdict: {verdict.verdict}; fit y/u free run {verdict.fit['free_run']['y']:.1f}/"
+        f"{verdict.fit['free_run']['u']:.1f} %, {HORIZON_S * 1e3:.0f} ms prediction "
+        f"{verdict.fit['prediction']['y']:.1f}/{verdict.fit['prediction']['u']:.1f} %")
     elapsed = time.perf_counter() - t0
     say(f"done in {elapsed:.1f} s: before rms_y {before['rms_y']:.5f} rms_u {before['rms_u']:.5f}; "
         f"after rms_y {after['rms_y']:.5f} rms_u {after['rms_u']:.5f}; selected: {found.selected or 'none'}")
@@ -352,4 +434,4 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
                      unc, found.candidates, {**base, **cal.values}, analyse_residual(rec, cal.sim), residual_after,
                      noise, found.rounds, elapsed,
                      sims={"raw": cal.raw, "before": cal.sim, "after": sim_after}, unexplained=unexplained,
-                     record_warnings=list(rec.warnings))
+                     record_warnings=list(rec.warnings), verdict=verdict, fit_mode=cal.prob.mode)

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..record import Record
-from ..replay import replay
+from ..replay import HORIZON_S, NoiseModel, predict, replay
 
 if TYPE_CHECKING:
     from .effects import Parameterization
@@ -27,9 +27,37 @@ class Problem:
     sigma_u: float
     mask: np.ndarray                # samples whose error counts in the fit
 
-    def simulate(self, values: Mapping[str, float]) -> dict[str, np.ndarray]:
-        """The record's closed loop replayed with ``values`` over the base."""
+    noise: NoiseModel | None = None  # set: the errors are those of the k-step prediction, not the free run
+    stride: int = 5                 # prediction mode: a prediction from every stride-th sample
+    horizon_s: float = HORIZON_S    # prediction mode: how far ahead [s] (one sample: the PEM criterion)
+
+    @property
+    def mode(self) -> str:
+        """``free run`` or ``prediction``: which replay's errors the fits minimise."""
+        return "free run" if self.noise is None else "prediction"
+
+    def free_run(self, values: Mapping[str, float]) -> dict[str, np.ndarray]:
+        """The record's closed loop replayed with ``values`` over the base (all signals)."""
         return replay(self.rec, {**self.base, **values})
+
+    def simulate(self, values: Mapping[str, float]) -> dict[str, np.ndarray]:
+        """What the fits compare with the record: ``y`` and ``u`` of the free run, or of the
+        ``HORIZON_S`` prediction (NaN where no prediction ends) in prediction mode."""
+        if self.noise is None:
+            return self.free_run(values)
+        pr = predict(self.rec, {**self.base, **values}, self.noise, stride=self.stride, horizon_s=self.horizon_s)
+        return {"y": pr["y_pred"], "u": pr["u_pred"]}
+
+    def compared(self) -> np.ndarray:
+        """Samples where :meth:`simulate` gives a value: all in free-run mode, the ends of the
+        predictions in prediction mode (the same set for every parameter value)."""
+        n = self.rec.n
+        if self.noise is None:
+            return np.ones(n, bool)
+        k = max(1, int(round(self.horizon_s / self.rec.ts)))
+        out = np.zeros(n, bool)
+        out[np.arange(0, max(n - k, 0), self.stride) + k] = True
+        return out
 
     def with_base(self, values: Mapping[str, float]) -> Problem:
         """The same problem with ``values`` folded into the base."""
@@ -43,7 +71,7 @@ def residuals(prob: Problem, values: Mapping[str, float], mask: np.ndarray | Non
     """Weighted residual vector (y errors, then u errors) of a replay with ``values`` applied.
     A parameter set the plant rejects (say x_0 pushed below x_max) costs as much as a ball
     lying on a stop: the search then turns away from it instead of failing."""
-    m = prob.mask if mask is None else mask
+    m = (prob.mask if mask is None else mask) & prob.compared()
     try:
         sim = prob.simulate(values)
     except ValueError:

@@ -1,0 +1,190 @@
+"""The last stage: how well the models explain the record, and the verdict.
+
+Figures for the calibrated baseline ("before") and the final model ("after"):
+
+- the fit % of y and u (NRMSE, as MATLAB's ``compare``) of the free-run replay, and of the
+  k-step prediction (:func:`maglev_cosim.replay.predict`: an extended Kalman filter on the C
+  plant with the record's own disturbance levels, estimated for each model by maximum
+  likelihood of its innovations, :func:`~maglev_cosim.replay.estimate_noise`: a model that lacks
+  a dynamic effect explains the record with a larger, faster random force);
+- the *predictable share* of the filter's one-step innovations: the R² of a least-squares
+  ARX fit of each innovation on the previous ``ARX_LAGS`` innovations and inputs. A model
+  that lacks nothing leaves innovations that nothing predicts (a share of p/N, about 0.2 % here);
+  a missing lag or delay leaves tens of %. It measures the size of what is missing, not only
+  its significance, so it does not grow with the record's length.
+
+The verdict (``diagnosis.json``'s ``verdict``):
+
+- ``calibration failed`` when a calibrated parameter ends on its bound;
+- ``unexplained: <location>`` when the final model's innovations keep a predictable share above
+  :data:`UNEXPLAINED_SHARE`, or its k-step prediction fits y worse than :data:`MIN_PREDICTION_FIT`;
+  the location is where the catalogue's corrections (grouped by where they act on the loop:
+  ``actuator``, ``mechanics``, ``sensor``) reduced the held-out cost most, or ``undetermined``
+  when none did;
+- ``explained`` when effects were selected and the model is consistent, ``no effect`` when the
+  calibrated baseline already is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..metrics import nrmse_fit
+from ..record import Record
+from ..replay import HORIZON_S, NoiseModel, estimate_noise, predict
+from .effects import BASELINE, CATALOGUE
+
+#: Lags [samples] of the innovation ARX fit.
+ARX_LAGS = 10
+#: Predictable share of the innovations above which the model lacks something.
+UNEXPLAINED_SHARE = 0.02
+#: k-step prediction fit of y [%] below which the record is not explained, whatever else holds.
+MIN_PREDICTION_FIT = 80.0
+#: Relative distance to a bound that counts as "on the bound".
+ON_BOUND = 1e-3
+
+#: Where each catalogue effect acts on the loop (effects may also say it themselves).
+LOCATIONS = {
+    "amplifier_lag": "actuator", "delay": "actuator", "current_saturation": "actuator",
+    "amplifier_dead_zone": "actuator",
+    "force_lag": "mechanics", "coulomb_friction": "mechanics", "force_exponent": "mechanics",
+    "sensor_nonlinearity": "sensor", "periodic_disturbance": "sensor", "sensor_lag": "sensor",
+}
+
+
+def location_of(effect: str) -> str:
+    """``actuator``, ``mechanics`` or ``sensor``: where the effect acts on the loop."""
+    return getattr(CATALOGUE.get(effect), "location", None) or LOCATIONS.get(effect, "undetermined")
+
+
+def predictable_share(innov: np.ndarray, u: np.ndarray, lags: int = ARX_LAGS) -> float:
+    """R² of the least-squares fit of ``innov[k]`` on ``innov[k-1..k-lags]`` and
+    ``u[k-1..k-lags]`` (samples the filter did not use count as zero innovations)."""
+    e = np.where(np.isfinite(innov), innov, 0.0)
+    uc = u - np.mean(u)
+    n = len(e)
+    if n <= 4 * lags:
+        return float("nan")
+    X = np.column_stack([e[lags - j:n - j] for j in range(1, lags + 1)] +
+                        [uc[lags - j:n - j] for j in range(1, lags + 1)])
+    target = e[lags:]
+    coef, *_ = np.linalg.lstsq(X, target, rcond=None)
+    var = float(np.var(target))
+    return float(1.0 - np.var(target - X @ coef) / var) if var > 0 else 0.0
+
+
+@dataclass
+class ModelFigures:
+    """How well one parameter set explains the record."""
+
+    free_run: dict[str, float]             # fit % of y and u
+    prediction: dict[str, float]           # horizon_s, fit % of y and u
+    predictable_share: float               # of the one-step innovations
+    sims: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {"free_run": self.free_run, "prediction": self.prediction}
+
+
+def figures(rec: Record, values: Mapping[str, float], sim: Mapping[str, np.ndarray], noise: NoiseModel,
+            horizon_s: float = HORIZON_S) -> ModelFigures:
+    """Free-run and k-step fits and the innovations' predictable share of one parameter set."""
+    pr = predict(rec, values, noise, horizon_s=horizon_s)
+    ok = np.isfinite(pr["y_pred"]) & np.isfinite(pr["u_pred"])
+    return ModelFigures(
+        free_run={"y": nrmse_fit(rec.y, sim["y"]), "u": nrmse_fit(rec.u, sim["u"])},
+        prediction={"horizon_s": horizon_s, "y": nrmse_fit(rec.y[ok], pr["y_pred"][ok]),
+                    "u": nrmse_fit(rec.u[ok], pr["u_pred"][ok])},
+        predictable_share=predictable_share(pr["innov"], rec.u),
+        sims={"y_pred": pr["y_pred"], "u_pred": pr["u_pred"], "innov": pr["innov"]})
+
+
+#: Bounds that are physical limits, not limits of the search: a calibration that ends there has
+#: not failed (a damping the record cannot resolve is fitted as none).
+PHYSICAL_BOUNDS = {("k_FV", "lo")}
+
+
+def on_bounds(values: Mapping[str, float]) -> tuple[list[str], list[str]]:
+    """Calibrated parameters that ended on (within :data:`ON_BOUND` of) a bound of their fit:
+    those on a search bound (the calibration failed), and those on a physical limit."""
+    search, physical = [], []
+    for c in BASELINE.coords:
+        span = c.hi - c.lo
+        v = values[c.name]
+        for side, hit in (("lo", v <= c.lo + ON_BOUND * span), ("hi", v >= c.hi - ON_BOUND * span)):
+            if hit:
+                text = f"{c.name} = {v:.4g} (bounds [{c.lo:.4g}, {c.hi:.4g}])"
+                (physical if (c.name, side) in PHYSICAL_BOUNDS else search).append(text)
+    return search, physical
+
+
+@dataclass
+class Verdict:
+    """The last stage's result: ``verdict``, ``fit``, ``fit_before``, ``warnings`` and the evidence."""
+
+    verdict: str
+    fit: dict
+    fit_before: dict
+    warnings: list[str]
+    noise: NoiseModel                      # the final model's disturbance estimate
+    noise_before: NoiseModel
+    predictable_share: dict[str, float]
+    location_evidence: dict[str, dict]
+    before: ModelFigures
+    after: ModelFigures
+
+    def to_json(self) -> dict:
+        return {"verdict": self.verdict, "fit": self.fit, "fit_before": self.fit_before, "warnings": self.warnings,
+                "noise_model": self.noise.to_json(), "noise_model_before": self.noise_before.to_json(),
+                "innovations_predictable_share": self.predictable_share,
+                "location_evidence": self.location_evidence}
+
+
+def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, float],
+             sims: Mapping[str, Mapping[str, np.ndarray]], selected: Sequence[str], candidates: Sequence[dict],
+             say=lambda s: None) -> Verdict:
+    """Figures of both models, the warnings and the verdict."""
+    say("estimating the record's disturbances (random force on the ball, sensor noise) from the filter's "
+        "innovations, for the calibrated baseline and the final model")
+    noise_before = estimate_noise(rec, baseline)
+    noise = estimate_noise(rec, final)
+    say(f"  final model: random force {noise.q_force * 1e3:.3g} mN RMS (corner {noise.f_force:.3g} Hz), "
+        f"sensor noise {noise.r_sensor:.3g} MU RMS; k-step prediction over {HORIZON_S * 1e3:.0f} ms")
+    before = figures(rec, baseline, sims["before"], noise_before)
+    after = figures(rec, final, sims["after"], noise)
+    warnings: list[str] = []
+    (sb, pb), (sf, pf) = on_bounds(baseline), on_bounds(final)
+    bounds = sorted(set(sb) | set(sf))
+    for text in sorted(set(pb) | set(pf)):
+        warnings.append(f"{text} sits on its physical limit: the record does not resolve it")
+    if bounds:
+        warnings.append("calibrated parameter(s) on a bound of their range: " + "; ".join(bounds)
+                        + ": the calibration failed, and the figures below are those of a model that does not fit")
+    last_round = max((c["round"] for c in candidates), default=0)
+    evidence: dict[str, dict] = {}
+    for c in candidates:
+        if c["round"] != last_round:
+            continue
+        loc = location_of(c["effect"])
+        if loc not in evidence or c["held_out_gain"] > evidence[loc]["held_out_gain"]:
+            evidence[loc] = {"effect": c["effect"], "held_out_gain": float(c["held_out_gain"])}
+    share = after.predictable_share
+    lacking = share > UNEXPLAINED_SHARE or after.prediction["y"] < MIN_PREDICTION_FIT
+    if bounds:
+        verdict = "calibration failed"
+    elif lacking:
+        best = max(evidence.items(), key=lambda kv: kv[1]["held_out_gain"], default=None)
+        location = best[0] if best and best[1]["held_out_gain"] > 0 else "undetermined"
+        verdict = f"unexplained: {location}"
+        warnings.append(f"the final model leaves {100 * share:.1f} % of the filter's innovations predictable from "
+                        f"their past and the input (consistent: below {100 * UNEXPLAINED_SHARE:.0f} %), and its "
+                        f"{HORIZON_S * 1e3:.0f} ms prediction fits y by {after.prediction['y']:.1f} %: something "
+                        f"outside the catalogue remains" + (f", most likely at the {location}" if best and
+                                                            location != "undetermined" else ""))
+    else:
+        verdict = "explained" if selected else "no effect"
+    return Verdict(verdict, after.to_json(), before.to_json(), warnings, noise, noise_before,
+                   {"before": before.predictable_share, "after": share}, evidence, before, after)
