@@ -82,9 +82,9 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
         dt = time.perf_counter() - t0
         after_null[seed] = d.after["rms_u"]
         print(f"{seed:>6}  {_describe(dist):<62}{','.join(d.selected) or '-':<28}"
-              f"{d.after['rms_y']:.5f}/{d.after['rms_u']:.5f}   {dt:5.1f}", flush=True)
+              f"{d.after['rms_y']:.5f}/{d.after['rms_u']:.5f}   {dt:5.1f}  {d.verdict.verdict}", flush=True)
         out["null"].append({"seed": seed, "disturbance": dist, "selected": d.selected, "after": d.after,
-                            "seconds": dt, "warnings": rec.warnings})
+                            "seconds": dt, "warnings": rec.warnings, "verdict": d.verdict.verdict})
     fp = sum(bool(r["selected"]) for r in out["null"])
     if n_power:
         print(f"\nCatalogue effects on the first {n_power} draws:")
@@ -99,15 +99,21 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
             d = diagnose(rec)
             dt = time.perf_counter() - t0
             ratio = d.after["rms_u"] / after_null[seed] if seed in after_null else float("nan")
-            print(f"{name:<22}{seed:>6}  {','.join(d.selected) or '-':<40}{ratio:>13.2f}{dt:>6.1f}", flush=True)
+            print(f"{name:<22}{seed:>6}  {','.join(d.selected) or '-':<40}{ratio:>13.2f}{dt:>6.1f}  "
+                  f"{d.verdict.verdict}", flush=True)
             out["power"].append({"effect": name, "seed": seed, "selected": d.selected, "after_over_null": ratio,
-                                 "seconds": dt})
+                                 "seconds": dt, "verdict": d.verdict.verdict})
     hits = sum(r["selected"][:1] == [r["effect"]] for r in out["power"])
+    explained = sum(r["verdict"] == "explained" for r in out["power"])
     print("\n| benchmark | records | rate |\n|---|---|---|")
     print(f"| false positives (any effect selected on a no-effect record) | {n_null} | {100 * fp / max(n_null, 1):.1f} % |")
+    wrong = sum(r["verdict"] != "no effect" for r in out["null"])
+    print(f"| no-effect records whose verdict is not 'no effect' | {n_null} | {100 * wrong / max(n_null, 1):.1f} % |")
     if out["power"]:
         print(f"| power (the planted catalogue effect selected first) | {len(out['power'])} | "
               f"{100 * hits / len(out['power']):.1f} % |")
+        print(f"| catalogue records with the verdict 'explained' | {len(out['power'])} | "
+              f"{100 * explained / len(out['power']):.1f} % |")
     out["false_positive_rate"] = fp / max(n_null, 1)
     out["power_rate"] = hits / len(out["power"]) if out["power"] else None
     return out

@@ -124,11 +124,16 @@ def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_pa
     assert "round 1" in r.stderr                 # progress while it works
     d = json.loads((out / "diagnosis.json").read_text())
     assert {"record", "before", "after", "selected", "parameters", "candidates"} <= set(d)
-    assert d["record_warnings"] == []
+    assert d["record_warnings"] == [] and d["verdict"] == "explained" and isinstance(d["warnings"], list)
+    for key in ("fit", "fit_before"):
+        assert set(d[key]) == {"free_run", "prediction"} and d[key]["prediction"]["horizon_s"] == 0.02
+        assert all(0 < d[key][m][s] <= 100 for m in ("free_run", "prediction") for s in ("y", "u"))
+    assert d["fit"]["free_run"]["u"] > d["fit_before"]["free_run"]["u"]
     assert d["selected"] == ["delay"] and d["parameters"]["T_d"] == pytest.approx(0.003, rel=0.1)
     for c in d["candidates"]:
         assert {"effect", "parameters", "rms_y", "rms_u", "accepted"} <= set(c)
     report = (out / "report.md").read_text()
+    assert report.splitlines()[2].startswith("**Verdict: explained.**")
     for png in ("measured_vs_simulated.png", "residual.png", "spectrum.png", "zoom.png", "resid.png"):
         assert png in report and (out / png).stat().st_size > 10000
     assert "Criterion" in report and "| T_d | " in report and "| s |" in report   # units in the tables

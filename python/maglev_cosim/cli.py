@@ -276,6 +276,13 @@ def cmd_diagnose(a: argparse.Namespace) -> dict:
     _progress(f"diagnosing {a.record}: {rec.n} samples, {rec.duration:.2f} s")
     d = diagnose(rec, effects=effects, progress=_progress, workers=a.workers)
     written = write_report(rec, d, Path(a.out), fmu=fmu)
+    if d.verdict is not None:
+        v = d.verdict
+        print(f"verdict: {v.verdict} (fit y/u: free run {v.fit['free_run']['y']:.1f}/{v.fit['free_run']['u']:.1f} %, "
+              f"{v.fit['prediction']['horizon_s'] * 1e3:.0f} ms ahead {v.fit['prediction']['y']:.1f}/"
+              f"{v.fit['prediction']['u']:.1f} %)")
+        for w in d.warnings:
+            print(f"warning: {w}")
     print(f"selected: {d.selected or 'none'}")
     print(f"before: rms_y {d.before['rms_y']:.6f} MU, rms_u {d.before['rms_u']:.6f} MU")
     print(f"after:  rms_y {d.after['rms_y']:.6f} MU, rms_u {d.after['rms_u']:.6f} MU")

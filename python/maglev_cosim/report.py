@@ -72,6 +72,11 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].plot(rec.t[a:b], meas[a:b], color="k", lw=1, label=f"measured {sig}")
         ax[k].plot(rec.t[a:b], before[sig][a:b], color="tab:red", lw=1, label="simulated, before")
         ax[k].plot(rec.t[a:b], after[sig][a:b], color="tab:blue", lw=1, ls="--", label="simulated, after")
+        if d.verdict is not None:
+            pred = d.verdict.after.sims[f"{sig}_pred"]
+            h = d.verdict.fit["prediction"]["horizon_s"]
+            ax[k].plot(rec.t[a:b], pred[a:b], color="tab:green", lw=0.9, ls=":",
+                       label=f"predicted {h * 1e3:.0f} ms ahead, after")
         ax[k].set_ylabel(f"{sig} [MU]")
         ax[k].legend(loc="upper right", fontsize=8, ncol=4)
     ax[1].set_xlabel("t [s]")
@@ -136,6 +141,21 @@ def _fmt(v: float) -> str:
     return f"{v:.4g}" if isinstance(v, float) and math.isfinite(v) else str(v)
 
 
+def _verdict_sentence(d: Diagnosis) -> str:
+    v = d.verdict.verdict
+    if v == "explained":
+        return "The calibrated model with " + ", ".join(d.selected) + " explains the record."
+    if v == "no effect":
+        return "The calibrated baseline already explains the record: no effect of the catalogue is missing."
+    if v == "calibration failed":
+        return "The calibration ended on a bound of a parameter's range: the model does not fit this record."
+    loc = v.split(":", 1)[1].strip()
+    where = "no correction of the catalogue points to a place" if loc == "undetermined" else \
+        f"the corrections at the {loc} explain most of what is left"
+    return ("Something the catalogue lacks remains after " + (", ".join(d.selected) or "calibration")
+            + f": {where}.")
+
+
 def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = None) -> dict[str, Path]:
     """Writes ``diagnosis.json``, ``report.md``, the plots and (given the FMU) ``maglev_calibrated.fmu``."""
     out.mkdir(parents=True, exist_ok=True)
@@ -151,18 +171,32 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
 
     units = {n: row[3] for n, row in param_table().items()}
     lines = [f"# Diagnosis of `{rec.path}`", ""]
+    if d.verdict is not None:
+        v = d.verdict
+        fr, pr, frb, prb = v.fit["free_run"], v.fit["prediction"], v.fit_before["free_run"], v.fit_before["prediction"]
+        h = f"{pr['horizon_s'] * 1e3:.0f} ms"
+        lines += [f"**Verdict: {v.verdict}.** " + _verdict_sentence(d), "",
+                  "| fit [%] (NRMSE, as MATLAB's compare) | y free run | u free run | "
+                  f"y {h} ahead | u {h} ahead |", "|---|---|---|---|---|",
+                  f"| calibrated baseline | {frb['y']:.1f} | {frb['u']:.1f} | {prb['y']:.1f} | {prb['u']:.1f} |",
+                  f"| final model | {fr['y']:.1f} | {fr['u']:.1f} | {pr['y']:.1f} | {pr['u']:.1f} |", ""]
+        lines += [f"The fits minimised the {d.fit_mode} error. The k-step prediction is an extended Kalman filter "
+                  "on the C plant that follows the measured past, with the record's own disturbances: a random "
+                  f"force of {v.noise.q_force * 1e3:.3g} mN RMS (corner {v.noise.f_force:.3g} Hz) and a sensor "
+                  f"noise of {v.noise.r_sensor:.3g} MU RMS, estimated from the innovations. What the final model "
+                  f"leaves in the innovations is {100 * v.predictable_share['after']:.1f} % predictable (baseline: "
+                  f"{100 * v.predictable_share['before']:.1f} %).", ""]
+    if d.warnings:
+        lines += ["**Warnings**:", ""] + [f"- {w}" for w in d.warnings] + [""]
     lines += [f"Record: {rec.n} samples at ts = {rec.ts} s ({rec.duration:.2f} s); PID kp = {rec.kp}, "
               f"ki = {rec.ki}, kd = {rec.kd}, output limits [{rec.u_min}, {rec.u_max}] MU.", ""]
-    if d.record_warnings:
-        lines += ["**Warnings about the record** (the figures below hold for it as it is):", ""]
-        lines += [f"- {w}" for w in d.record_warnings] + [""]
     lines += ["## Result", ""]
     if d.selected:
         lines.append("Effects the baseline lacks, in the order they were found: "
                      + ", ".join(f"**{e}** ({CATALOGUE[e].description})" for e in d.selected) + ".")
     else:
-        lines.append("**No effect selected**: after calibration no effect of the catalogue explains the "
-                     "residual better than noise does.")
+        lines.append("No effect of the catalogue was selected: none explains the held-out residual better than "
+                     "noise does (whether that means the baseline suffices is the verdict above).")
     fits = {k: (nrmse_fit(rec.y, d.sims[k]["y"]), nrmse_fit(rec.u, d.sims[k]["u"])) for k in ("before", "after")}
     lines += ["", "| | rms_y [MU] | rms_u [MU] | fit y [%] | fit u [%] |", "|---|---|---|---|---|",
               f"| before (calibrated baseline) | {d.before['rms_y']:.6f} | {d.before['rms_u']:.6f} "
