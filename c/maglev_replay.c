@@ -210,6 +210,23 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
 #define NS 5 /* x, v, i, F, d */
 #define JAC_EVERY 10
 
+/* P = M P M' */
+static void sandwich(double M[NS][NS], double P[NS][NS]) { /* M is only read */
+    double MP[NS][NS];
+    for (int i = 0; i < NS; i++)
+        for (int j = 0; j < NS; j++) {
+            double acc = 0;
+            for (int l = 0; l < NS; l++) acc += M[i][l] * P[l][j];
+            MP[i][j] = acc;
+        }
+    for (int i = 0; i < NS; i++)
+        for (int j = 0; j < NS; j++) {
+            double acc = 0;
+            for (int l = 0; l < NS; l++) acc += MP[i][l] * M[j][l];
+            P[i][j] = acc;
+        }
+}
+
 static void get_state(const MaglevPlant *m, double d, double s[NS]) {
     s[0] = m->x;
     s[1] = m->v;
@@ -320,21 +337,12 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
             put_state(&m, s);
             d = s[4];
             /* Joseph form: P = (I - K H) P (I - K H)' + K r2 K' */
-            double IKH[NS][NS], T[NS][NS];
+            double IKH[NS][NS];
             for (int i = 0; i < NS; i++)
                 for (int j = 0; j < NS; j++) IKH[i][j] = (i == j) - (j == 0 ? K[i] * H : 0.0);
+            sandwich(IKH, P);
             for (int i = 0; i < NS; i++)
-                for (int j = 0; j < NS; j++) {
-                    double acc = 0;
-                    for (int l = 0; l < NS; l++) acc += IKH[i][l] * P[l][j];
-                    T[i][j] = acc;
-                }
-            for (int i = 0; i < NS; i++)
-                for (int j = 0; j < NS; j++) {
-                    double acc = 0;
-                    for (int l = 0; l < NS; l++) acc += T[i][l] * IKH[j][l];
-                    P[i][j] = acc + K[i] * r2 * K[j];
-                }
+                for (int j = 0; j < NS; j++) P[i][j] += K[i] * r2 * K[j];
         }
         /* the controller, on the measured reading: its state for the predictions */
         (void)pid_step(pid, &ps, w[k], y[k]);
@@ -411,19 +419,10 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
         m = nom;
         d = a * d;
         if (rc) break;
-        double AP[NS][NS];
+        sandwich(A, P);
         for (int i = 0; i < NS; i++)
-            for (int j = 0; j < NS; j++) {
-                double acc = 0;
-                for (int l = 0; l < NS; l++) acc += A[i][l] * P[l][j];
-                AP[i][j] = acc;
-            }
-        for (int i = 0; i < NS; i++)
-            for (int j = 0; j < NS; j++) {
-                double acc = 0;
-                for (int l = 0; l < NS; l++) acc += AP[i][l] * A[j][l];
-                P[i][j] = active[i] && active[j] ? acc : 0.0;
-            }
+            for (int j = 0; j < NS; j++)
+                if (!active[i] || !active[j]) P[i][j] = 0.0;
         for (int i = 0; i < NS; i++) P[i][i] += active[i] ? q_extra[i] : 0.0;
         P[4][4] += f->q_force * f->q_force * (1.0 - a * a);
         for (int i = 0; i < NS; i++)

@@ -82,9 +82,11 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
         dt = time.perf_counter() - t0
         after_null[seed] = d.after["rms_u"]
         print(f"{seed:>6}  {_describe(dist):<62}{','.join(d.selected) or '-':<28}"
-              f"{d.after['rms_y']:.5f}/{d.after['rms_u']:.5f}   {dt:5.1f}  {d.verdict.verdict}", flush=True)
+              f"{d.after['rms_y']:.5f}/{d.after['rms_u']:.5f}   {dt:5.1f}  {d.verdict.verdict} "
+              f"(share {100 * d.verdict.predictable_share['after']:.1f} %)", flush=True)
         out["null"].append({"seed": seed, "disturbance": dist, "selected": d.selected, "after": d.after,
-                            "seconds": dt, "warnings": rec.warnings, "verdict": d.verdict.verdict})
+                            "seconds": dt, "warnings": rec.warnings, "verdict": d.verdict.verdict,
+                            "predictable_share": d.verdict.predictable_share["after"]})
     fp = sum(bool(r["selected"]) for r in out["null"])
     if n_power:
         print(f"\nCatalogue effects on the first {n_power} draws:")
