@@ -16,6 +16,7 @@
 #define T_F_MIN 1e-6 /* [s] shorter force lags would need ever smaller RK4 substeps */
 #define TRANSIENT_EPS 1e-6 /* [A] current transient below which RK4 may take full steps */
 #define FF_CURRENT_EPS 1e-12 /* [A] current transient that no longer moves a force lag's input */
+#define V_COULOMB 1e-4 /* [m/s] smoothing speed of the Coulomb friction: F_c*tanh(v/V_COULOMB) */
 
 /* The ranges are physical plausibility bounds, far wider than any rig, that keep every product
  * of the equations finite: a value outside them is a unit error or a typing slip. */
@@ -54,6 +55,10 @@ const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
     [VR_A_d] = {"A_d", MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "V", "Amplitude of sinusoidal pickup on the sensor voltage (effect periodic_disturbance; 0 = off)"},
     [VR_f_d] = {"f_d", MAGLEV_PARAMETER, 50.0, 0.0, 1e5, "Hz", "Frequency of the sensor pickup"},
     [VR_phi_d] = {"phi_d", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "rad", "Phase of the sensor pickup at t = 0"},
+    [VR_F_c] = {"F_c", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "N", "Coulomb friction force on the moving ball, smoothed as F_c*tanh(v/v_c) with v_c = 0.1 mm/s (effect coulomb_friction; 0 = off)"},
+    [VR_n_F] = {"n_F", MAGLEV_PARAMETER, 2.0, 1.0, 4.0, "1", "Force-law exponent: F = k_c*i^2/(x_0 - x)^2 * ((x_0 - x_n)/(x_0 - x))^(n_F - 2) (effect force_exponent; 2 = Eq. 8)"},
+    [VR_x_n] = {"x_n", MAGLEV_PARAMETER, 3.2e-3, POS_M, "m", "Position where a force-law exponent other than 2 leaves the force unchanged (the paper's operating point), below x_0"},
+    [VR_u_dz] = {"u_dz", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "V", "Half-width of the amplifier's dead zone around 0 V input (effect amplifier_dead_zone; 0 = off)"},
     [VR_solver_step] = {"solver_step", MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step"},
     [VR_F] = {"F", MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8"},
 };
@@ -106,6 +111,8 @@ int maglev_check_params(const MaglevPlant *m, char *msg, size_t len) {
                     P(m, x_0), P(m, x_max));
     if (!(P(m, x_min) < P(m, x_max)))
         return fail(msg, len, "variable x_min: must be below x_max = %g m, got %g", P(m, x_max), P(m, x_min));
+    if (!(P(m, x_n) < P(m, x_0)))
+        return fail(msg, len, "variable x_n: must be below x_0 = %g m, got %g", P(m, x_0), P(m, x_n));
     if (P(m, x_start) < P(m, x_min) || P(m, x_start) > P(m, x_max))
         return fail(msg, len, "variable x_start: must lie between the stops [%g, %g] m, got %g", P(m, x_min),
                     P(m, x_max), P(m, x_start));
@@ -147,12 +154,19 @@ int maglev_check_plant(const MaglevPlant *m, char *msg, size_t len) {
 
 static double current_command(const MaglevPlant *m, double u_mu) {
     double u_volt = P(m, k_DA) * clip(u_mu, -MU_LIMIT, MU_LIMIT) + P(m, u_0); /* Eq. 1 */
-    return clip(P(m, k_i) * u_volt, 0.0, P(m, i_max));                       /* Eq. 2/5 */
+    if (P(m, u_dz) > 0) /* the amplifier's dead zone: no current for |u_volt| <= u_dz */
+        u_volt = u_volt > P(m, u_dz) ? u_volt - P(m, u_dz) : (u_volt < -P(m, u_dz) ? u_volt + P(m, u_dz) : 0.0);
+    return clip(P(m, k_i) * u_volt, 0.0, P(m, i_max)); /* Eq. 2/5 */
+}
+
+/* (x_0 - x_n)/(x_0 - x) to the power n_F - 2: 1 for the paper's law (n_F = 2). */
+static double exponent_factor(const MaglevPlant *m, double gap) {
+    return P(m, n_F) == 2.0 ? 1.0 : pow((P(m, x_0) - P(m, x_n)) / gap, P(m, n_F) - 2.0);
 }
 
 static double static_force(const MaglevPlant *m, double i, double x) {
     double gap = P(m, x_0) - x;
-    return P(m, k_c) * i * i / (gap * gap); /* Eq. 8 */
+    return P(m, k_c) * i * i / (gap * gap) * exponent_factor(m, gap); /* Eq. 8 */
 }
 
 /* Current at tau into a piece whose command is ic and whose start current is i0. */
@@ -189,11 +203,14 @@ typedef struct {
     const MaglevPlant *m;
     double i0, ic;          /* current at the piece's start and its command */
     double kc_m, kfv_m, x0; /* k_c/m_k, k_FV/m_k, x_0: the hot loop's constants */
+    double fc_m;            /* F_c/m_k [m/s2] */
+    int exponent;           /* n_F != 2 */
     long *work;             /* RK4 evaluations spent in this maglev_step, against the budget */
 } Piece;
 
 static Piece make_piece(const MaglevPlant *m, double i0, double ic, long *work) {
-    Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), work};
+    Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), P(m, F_c) / P(m, m_k),
+                P(m, n_F) != 2.0, work};
     return pc;
 }
 
@@ -205,12 +222,16 @@ HOT Mech deriv(const Piece *pc, double i, Mech s, int contact) {
         d.F = (Fs - s.F) / P(m, T_F);
         d.x = contact ? 0.0 : s.v;
         d.v = contact ? 0.0 : s.F / P(m, m_k) - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
+        if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
         return d;
     }
     double gap = pc->x0 - s.x;
     d.F = 0.0;
     d.x = contact ? 0.0 : s.v;
-    d.v = contact ? 0.0 : pc->kc_m * i * i / (gap * gap) - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
+    double force = pc->kc_m * i * i / (gap * gap);
+    if (pc->exponent) force *= exponent_factor(m, gap);
+    d.v = contact ? 0.0 : force - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
+    if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
     return d;
 }
 
@@ -347,6 +368,8 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
     Mech s = {m->x, m->v, m->F};
     double hmax = P(m, solver_step);
     if (P(m, T_F) > 0 && P(m, T_F) / 2 < hmax) hmax = P(m, T_F) / 2;
+    /* the smoothed friction's slope F_c/(m_k*v_c) is a fast rate near v = 0: keep RK4's h*rate <= 0.1 */
+    if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c) < hmax) hmax = 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c);
     double hfine = hmax, t_fine = 0.0, di = fabs(pc.i0 - pc.ic);
     if (P(m, T_a) > 0 && di > TRANSIENT_EPS) {
         if (P(m, T_a) / 8 < hfine) hfine = P(m, T_a) / 8;
@@ -401,8 +424,8 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
 
 double maglev_force(const MaglevPlant *m, double i, double x, double *dF_dx, double *dF_di) {
     double gap = P(m, x_0) - x, F = static_force(m, i, x);
-    if (dF_dx) *dF_dx = 2 * F / gap;                           /* Eq. 16 */
-    if (dF_di) *dF_di = 2 * P(m, k_c) * i / (gap * gap);       /* Eq. 17 */
+    if (dF_dx) *dF_dx = P(m, n_F) * F / gap;                                       /* Eq. 16 */
+    if (dF_di) *dF_di = 2 * P(m, k_c) * i / (gap * gap) * exponent_factor(m, gap); /* Eq. 17 */
     return F;
 }
 
@@ -431,11 +454,13 @@ double maglev_position_for_reading(const MaglevPlant *m, double y, double t) {
 }
 
 double maglev_equilibrium_current(const MaglevPlant *m, double x) {
-    return (P(m, x_0) - x) * sqrt(P(m, m_k) * P(m, g) / P(m, k_c)); /* Eq. 8 at rest */
+    double gap = P(m, x_0) - x;
+    return gap * sqrt(P(m, m_k) * P(m, g) / (P(m, k_c) * exponent_factor(m, gap))); /* Eq. 8 at rest */
 }
 
 double maglev_input_for_current(const MaglevPlant *m, double i) {
-    return (i / P(m, k_i) - P(m, u_0)) / P(m, k_DA); /* Eq. 5 and Eq. 1 inverted */
+    double volts = i / P(m, k_i) + (i > 0 ? P(m, u_dz) : 0.0); /* Eq. 5 inverted, past the dead zone */
+    return (volts - P(m, u_0)) / P(m, k_DA);                      /* Eq. 1 inverted */
 }
 
 /* ---- history of the input, for the delay ---- */

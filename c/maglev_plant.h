@@ -39,6 +39,10 @@ typedef enum {
     VR_A_d,
     VR_f_d,
     VR_phi_d,
+    VR_F_c,
+    VR_n_F,
+    VR_x_n,
+    VR_u_dz,
     VR_solver_step,
     VR_F,
     MAGLEV_NVARS

@@ -38,6 +38,8 @@ CASES = {
                              ["periodic_disturbance"], {"A_d": (0.008, 0.05), "f_d": (37.0, 0.002)}),
     "two_effects": ({"delay": {"T_d": 0.002}, "periodic_disturbance": {"A_d": 0.008, "f_d": 50.0, "phi_d": 0.0}},
                     None, ["delay", "periodic_disturbance"], {"T_d": (0.002, 0.10), "A_d": (0.008, 0.05)}),
+    "force_exponent": ({"force_exponent": {"n_F": 3.0}}, None, ["force_exponent"], {"n_F": (3.0, 0.05)}),
+    "coulomb_friction": ({"coulomb_friction": {"F_c": 2e-3}}, None, ["coulomb_friction"], {"F_c": (2e-3, 0.25)}),
     "sine_reference_60Hz_pickup": ({"periodic_disturbance": {"A_d": 0.004, "f_d": 60.0, "phi_d": -2.0}}, None,
                                    ["periodic_disturbance"], {"A_d": (0.004, 0.08), "f_d": (60.0, 0.002)}),
 }
@@ -86,8 +88,8 @@ def test_effect_found_recovered_and_residual_at_noise(name, tmp_path_factory):
 
 
 OUTSIDE = {
-    "force_exponent": ({"force_exponent": {"n": 3.0}}, None),
-    "coulomb_friction": ({"coulomb_friction": {"F_c": 2e-3}}, None),
+    # an amplifier whose current slews at 20 A/s at most: an effect the catalogue lacks (rig.py)
+    "slew_rate": ({"slew_rate": {"di_max": 20.0}}, None),
 }
 
 

@@ -65,7 +65,7 @@ def test_each_effect_changes_the_response_as_it_should():
     assert np.max(np.abs(nonlin["x"] - base["x"])) > 2e-5
     lag = _run(T_a=3e-3)
     assert np.max(np.abs(lag["y"] - base["y"])) > 1e-3
-    exponent = _run(n=2.4)
+    exponent = _run(n_F=2.4)
     assert np.max(np.abs(exponent["u"] - base["u"])) > 1e-3
 
 

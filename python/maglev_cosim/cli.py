@@ -490,8 +490,8 @@ def build_parser() -> argparse.ArgumentParser:
                        help="write a synthetic record from the rig emulator (truth in a .truth.json sidecar)")
     s.add_argument("--out", required=True, help="record file to write")
     s.add_argument("--effect", action="append", metavar="NAME:PARAM=VALUE",
-                   help="an effect to plant, e.g. delay:T_d=0.0025 (repeatable; catalogue below, plus "
-                        "force_exponent:n=3 and coulomb_friction:F_c=...)")
+                   help="an effect to plant, e.g. delay:T_d=0.0025 (repeatable; the catalogue below, plus "
+                        "slew_rate:di_max=... [A/s], an effect the catalogue lacks)")
     s.add_argument("--param", action="append", metavar="NAME=VALUE", help="plant parameter override in SI units "
                    "(repeatable)")
     s.add_argument("--reference", choices=["square", "sine", "steps", "chirp"], default="steps",

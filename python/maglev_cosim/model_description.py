@@ -29,6 +29,7 @@ SOURCE_FILES = ("maglev_fmu.c", "maglev_plant.c")
 # SI base-unit exponents of every unit the table uses.
 _UNITS: dict[str, dict[str, float]] = {
     "MU": {},
+    "1": {},
     "m": {"m": 1},
     "m/s": {"m": 1, "s": -1},
     "m/s2": {"m": 1, "s": -2},

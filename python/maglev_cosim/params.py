@@ -44,6 +44,10 @@ class PlantParams:
     A_d: float = 0.0           #: sensor pickup amplitude [V] (effect periodic_disturbance)
     f_d: float = 50.0          #: sensor pickup frequency [Hz]
     phi_d: float = 0.0         #: sensor pickup phase [rad]
+    F_c: float = 0.0           #: Coulomb friction force [N], F_c·tanh(v/0.1 mm/s) (effect coulomb_friction)
+    n_F: float = 2.0           #: force-law exponent [-] (effect force_exponent; 2: Eq. 8)
+    x_n: float = 3.2e-3        #: position [m] where the exponent leaves the force unchanged
+    u_dz: float = 0.0          #: amplifier dead-zone half-width [V] (effect amplifier_dead_zone)
     solver_step: float = 1e-4  #: largest internal RK4 step [s]
 
     def replace(self, **changes: float) -> PlantParams:
@@ -79,7 +83,9 @@ SOURCES: dict[str, str] = {
     "i_start": "initial state", "T_F": "effect force_lag (off)", "T_d": "effect delay (off)",
     "k_x2": "effect sensor_nonlinearity (off)", "x_cal": "Table 3, second calibration point",
     "A_d": "effect periodic_disturbance (off)", "f_d": "effect periodic_disturbance",
-    "phi_d": "effect periodic_disturbance", "solver_step": "numerics",
+    "phi_d": "effect periodic_disturbance", "F_c": "effect coulomb_friction (off)",
+    "n_F": "effect force_exponent (2: Eq. 8)", "x_n": "the paper's operating point (Sec. 4)",
+    "u_dz": "effect amplifier_dead_zone (off)", "solver_step": "numerics",
 }
 
 _SECTION3 = PlantParams()

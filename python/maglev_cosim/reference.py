@@ -50,10 +50,13 @@ class ReferencePlant:
     def _command(self, u_mu: float) -> float:
         p = self.p
         volts = p.k_DA * min(max(u_mu, -1.0), 1.0) + p.u_0
+        volts = math.copysign(max(abs(volts) - p.u_dz, 0.0), volts)      # the amplifier's dead zone
         return min(max(p.k_i * volts, 0.0), p.i_max)
 
     def _force(self, i: float, x: float) -> float:
-        return self.p.k_c * i * i / (self.p.x_0 - x) ** 2
+        p = self.p
+        gap = p.x_0 - x
+        return p.k_c * i * i / gap**2 * ((p.x_0 - p.x_n) / gap) ** (p.n_F - 2.0)
 
     def _rhs(self, ic: float):
         p = self.p
@@ -66,7 +69,8 @@ class ReferencePlant:
             force = F if p.T_F > 0 else fs
             if self.mode:
                 return np.array([0.0, 0.0, di, dF])
-            return np.array([v, (force - p.k_FV * v) / p.m_k - p.g, di, dF])
+            friction = p.F_c * math.tanh(v / 1e-4) if p.F_c > 0 else 0.0
+            return np.array([v, (force - p.k_FV * v - friction) / p.m_k - p.g, di, dF])
 
         return f
 

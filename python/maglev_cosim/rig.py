@@ -19,8 +19,14 @@ The disturbance family is wider than these defaults (``RigConfig`` fields, and
 an Ornstein-Uhlenbeck process with time constant ``tau_drift``), any sensor noise level, and
 converters of 10 to 16 bits (``bits``).
 
-Effects outside the diagnosis catalogue, for honesty tests: ``force_exponent`` (force law
-``k_c'·i²/(x_0 − x)^n`` with ``k_c'`` keeping the 3.2 mm equilibrium) and ``coulomb_friction``.
+Effects the catalogue also has, written here in the emulator's own way: ``force_exponent``
+(force law ``k_c'·i²/(x_0 − x)^n_F`` with ``k_c'`` keeping the 3.2 mm equilibrium),
+``coulomb_friction`` (``F_c·tanh(v/0.1 mm/s)``) and ``amplifier_dead_zone`` (no current while the
+amplifier's input is within ``±u_dz`` volts).
+
+An effect the catalogue deliberately lacks, for honesty tests: ``slew_rate``, an amplifier whose
+current cannot change faster than ``di_max`` [A/s]. It acts at the actuator; the diagnosis should
+end ``unexplained: actuator`` on it.
 """
 
 from __future__ import annotations
@@ -60,8 +66,10 @@ class RigConfig:
     A_d: float = 0.0            # periodic_disturbance
     f_d: float = 50.0
     phi_d: float = 0.0
-    n: float = 2.0              # force_exponent (outside the catalogue)
-    F_c: float = 0.0            # coulomb_friction [N] (outside the catalogue)
+    n_F: float = 2.0            # force_exponent
+    F_c: float = 0.0            # coulomb_friction [N]
+    u_dz: float = 0.0           # amplifier_dead_zone [V]
+    di_max: float = 0.0         # slew_rate [A/s] (outside the catalogue; 0 = off)
     sigma_y: float = 2e-4       # [MU] sensor noise
     sigma_F_rel: float = 3e-3   # random force RMS / weight
     tau_F_noise: float = 0.02   # [s] low-pass of the random force
@@ -138,20 +146,22 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     rng = np.random.default_rng(c.seed)
     n = len(w)
     mg = c.m_k * c.g
-    kc = c.k_c * (c.x_0 - 3.2e-3) ** (c.n - 2.0)
-    expo = c.n
+    kc = c.k_c * (c.x_0 - 3.2e-3) ** (c.n_F - 2.0)
+    expo = c.n_F
 
     def force(i: float, x: float) -> float:
         return kc * i * i / (c.x_0 - x) ** expo
 
     def command(u_mu: float) -> float:
         volts = c.k_DA * min(max(u_mu, -1.0), 1.0) + c.u_0
+        if c.u_dz > 0:
+            volts = 0.0 if abs(volts) <= c.u_dz else volts - math.copysign(c.u_dz, volts)
         return min(max(c.k_i * volts, 0.0), c.i_max)
 
     # settled start at the first reference value
     x = _position_for(c, float(w[0]))
     i_eq = min(math.sqrt(mg * (c.x_0 - x) ** expo / kc), c.i_max)
-    u_hold = (i_eq / c.k_i - c.u_0) / c.k_DA
+    u_hold = (i_eq / c.k_i + (c.u_dz if i_eq > 0 else 0.0) - c.u_0) / c.k_DA
     v, i, F = 0.0, i_eq, force(i_eq, x)
 
     h_max = min(1e-4, c.T_a / 10 if c.T_a > 0 else 1.0, c.T_F / 4 if c.T_F > 0 else 1.0)
@@ -195,10 +205,12 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     def integrate(span: float, u_val: float, steps: int) -> None:
         nonlocal x, v, i, F
         ic = command(u_val)
-        if not lag_i:
+        if not lag_i and c.di_max <= 0:
             i = ic
         h = span / steps
         for _ in range(steps):
+            if not lag_i and c.di_max > 0:     # slew-limited current
+                i += min(max(ic - i, -c.di_max * h), c.di_max * h)
             # derivatives of (x, v, i, F)
             def d(xx: float, vv: float, ii: float, ff: float) -> tuple[float, float, float, float]:
                 fs = force(ii, xx)
@@ -213,7 +225,8 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
             x += h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
             v += h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
             if lag_i:
-                i += h / 6 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
+                di = h / 6 * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
+                i += min(max(di, -c.di_max * h), c.di_max * h) if c.di_max > 0 else di
             if lag_F:
                 F += h / 6 * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3])
             # inelastic stops, clamped at the end of each substep

@@ -23,8 +23,10 @@ EFFECTS: dict[str, tuple[str, ...]] = {
     "sensor_nonlinearity": ("k_x2",),
     "current_saturation": ("i_max",),
     "periodic_disturbance": ("A_d", "f_d", "phi_d"),
-    "force_exponent": ("n",),
+    "force_exponent": ("n_F",),
     "coulomb_friction": ("F_c",),
+    "amplifier_dead_zone": ("u_dz",),
+    "slew_rate": ("di_max",),
 }
 
 PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD", "y_MU0")

@@ -116,6 +116,8 @@ static void test_bad_values(void) {
         {VR_u, NAN, "u"},           {VR_u, -INFINITY, "u"},       {VR_k_FV, -0.1, "k_FV"},
         {VR_T_d, 2.0, "T_d"},       {VR_solver_step, 0.0, "solver_step"}, {VR_i_max, 0.0, "i_max"},
         {VR_T_F, -1.0, "T_F"},      {VR_g, 0.0, "g"},
+        {VR_F_c, -1e-3, "F_c"},     {VR_n_F, 5.0, "n_F"},      {VR_n_F, 0.5, "n_F"},
+        {VR_u_dz, -0.1, "u_dz"},    {VR_x_n, 2.0, "x_n"},
     };
     for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
         fmi2ValueReference vr = bad[k].vr;
@@ -570,6 +572,53 @@ static unsigned long long fnv1a(const fmi2Byte *b, size_t n) {
     return h;
 }
 
+/* The effects coulomb_friction, force_exponent and amplifier_dead_zone (docs/model.md): off by
+ * default, each changes the levitating ball's response when on, and x_n must lie below x_0. */
+static double levitate_with(MaglevVR vr, double value, double *x_end) {
+    double u_eq;
+    fmi2Component c = make("effects");
+    fmi2ValueReference vrs[] = {VR_x_start, VR_i_start, VR_u};
+    double x = 0.0032, m = 8.4e-3, g = 9.81, kc = 6.9e-6, x0 = 8.3e-3;
+    double i = (x0 - x) * sqrt(m * g / kc);
+    u_eq = i / (0.3 * 5.0);
+    double vals[] = {x, i, u_eq};
+    fmi2SetReal(c, vrs, 3, vals);
+    CHECK(fmi2SetReal(c, &vr, 1, &value) == fmi2OK, "setting %s = %g: %s", maglev_variables[vr].name, value, last_log);
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(c);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "init with %s: %s", maglev_variables[vr].name, last_log);
+    fmi2ValueReference u = VR_u, out[] = {VR_y, VR_x};
+    double kick = u_eq * 1.02, y[2] = {0, 0};
+    fmi2SetReal(c, &u, 1, &kick);
+    for (int k = 0; k < 20; k++) CHECK(fmi2DoStep(c, k * 1e-3, 1e-3, fmi2True) == fmi2OK, "step: %s", last_log);
+    fmi2GetReal(c, out, 2, y);
+    *x_end = y[1];
+    fmi2FreeInstance(c);
+    return y[0];
+}
+
+static void test_new_effects(void) {
+    double x_base, x_eff;
+    double y_base = levitate_with(VR_F_c, 0.0, &x_base);
+    CHECK(levitate_with(VR_n_F, 2.0, &x_eff) == y_base && x_eff == x_base, "n_F = 2 is not Eq. 8 exactly");
+    CHECK(levitate_with(VR_u_dz, 0.0, &x_eff) == y_base, "u_dz = 0 changes the response");
+    levitate_with(VR_F_c, 2e-3, &x_eff);
+    CHECK(x_eff < x_base - 1e-7, "friction does not slow the rising ball: %g vs %g", x_eff, x_base);
+    levitate_with(VR_n_F, 3.0, &x_eff);
+    CHECK(fabs(x_eff - x_base) > 1e-7, "n_F = 3 changes nothing: %g vs %g", x_eff, x_base);
+    levitate_with(VR_u_dz, 0.2, &x_eff);
+    CHECK(x_eff < x_base - 1e-6, "a dead zone does not lower the current: %g vs %g", x_eff, x_base);
+    /* x_n at or beyond x_0 is refused when initialisation ends, naming x_n */
+    fmi2Component c = make("xn");
+    fmi2ValueReference xn = VR_x_n;
+    double bad = 9e-3;
+    CHECK(fmi2SetReal(c, &xn, 1, &bad) == fmi2OK, "x_n alone is fine");
+    fmi2SetupExperiment(c, 0, 0, 0, 0, 0);
+    fmi2EnterInitializationMode(c);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2Error && logged("variable x_n"), "x_n >= x_0 accepted: %s", last_log);
+    fmi2FreeInstance(c);
+}
+
 static void test_deserialize_checks_values(void) {
     double u_eq;
     fmi2Component c = make_levitating("values", &u_eq);
@@ -624,6 +673,7 @@ int main(void) {
     test_state_before_init_restores();
     test_free_instance_frees_states();
     test_deserialize_checks_values();
+    test_new_effects();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }

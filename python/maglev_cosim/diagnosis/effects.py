@@ -214,6 +214,80 @@ class _AmplitudePhase(Parameterization):
         return {"A_d": math.hypot(a, b), "phi_d": math.atan2(b, a)}
 
 
+class CoulombFriction(Effect):
+    name = "coulomb_friction"
+    description = "Coulomb friction F_c*tanh(v/0.1 mm/s) on the moving ball (guide, air, cable drag)"
+    location = "mechanics"
+    params = ("F_c",)
+    coords = (Coord("F_c", 1e-3, 0.0, 0.05),)
+
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        """Below 10 uN: 0.01 % of the ball's weight."""
+        return values["F_c"] < 1e-5
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        """From 0.1 to 5 % of the ball's weight: a little friction is flat in cost, a lot is not."""
+        w = prob.base["m_k"] * prob.base["g"]
+        return [[float(v) * w] for v in (0.001, 0.003, 0.01, 0.02, 0.05)]
+
+
+class ForceExponent(Effect):
+    """The force law's exponent, about the record's mean position: ``x_n`` follows the record, so
+    that changing ``n_F`` bends the law without moving the equilibrium ``k_c`` and ``x_0`` hold."""
+
+    name = "force_exponent"
+    description = "a force law k_c*i^2/(x_0 - x)^n_F with n_F other than Eq. 8's 2"
+    location = "mechanics"
+    params = ("n_F", "x_n")
+    coords = (Coord("n_F", 0.1, 1.0, 4.0),)
+
+    def to_params(self, z: Sequence[float]) -> dict[str, float]:
+        return {"n_F": float(z[0])}
+
+    def to_coords(self, values: Mapping[str, float]) -> list[float]:
+        return [float(values["n_F"])]
+
+    def uncertainty_scales(self) -> dict[str, float]:
+        return {"n_F": 0.1}
+
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        return abs(values["n_F"] - 2.0) < 0.01
+
+    def start_values(self, z: Sequence[float], prob: Problem, current: Mapping[str, float]) -> dict[str, float]:
+        vals = super().start_values(z, prob, current)
+        from ..formulas import positions
+
+        x = positions({k: v for k, v in current.items() if k in prob.base}, prob.rec.y)
+        vals["x_n"] = float(min(np.mean(x), current["x_0"] - 1e-4))
+        return vals
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        return [[v] for v in (1.5, 1.8, 2.3, 2.7, 3.2, 3.7)]
+
+
+class AmplifierDeadZone(Effect):
+    name = "amplifier_dead_zone"
+    description = "a dead zone of half-width u_dz [V] around 0 V at the amplifier's input"
+    location = "actuator"
+    params = ("u_dz",)
+    coords = (Coord("u_dz", 0.1, 0.0, 3.0),)
+
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        """Below 1 mV: a fifth of a 12-bit D/A step at 5 V/MU."""
+        return values["u_dz"] < 1e-3
+
+    def start_values(self, z: Sequence[float], prob: Problem, current: Mapping[str, float]) -> dict[str, float]:
+        """A dead zone shifts the current for a given input: u_0 moves with it, so that a start
+        is judged by the zone's shape, not by the offset it adds."""
+        vals = super().start_values(z, prob, current)
+        c = next(c for c in BASELINE.coords if c.name == "u_0")
+        vals["u_0"] = min(max(current["u_0"] + (vals["u_dz"] - current.get("u_dz", 0.0)), c.lo), c.hi)
+        return vals
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        return [[v] for v in (0.05, 0.15, 0.3, 0.6, 1.0)]
+
+
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     _TimeConstant("amplifier_lag", "T_a", 0.0, "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5"),
     # below 50 us a force lag is invisible at 1 kHz
@@ -223,4 +297,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     SensorNonlinearity(),
     CurrentSaturation(),
     PeriodicDisturbance(),
+    CoulombFriction(),
+    ForceExponent(),
+    AmplifierDeadZone(),
 )}

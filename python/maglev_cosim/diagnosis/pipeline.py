@@ -194,8 +194,10 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) ->
         if c < best_cost:
             best, best_cost, best_vals = z, c, vals
     best = eff.prefit(prob, current, list(best))
-    f = fit(prob, [BASELINE, eff], [BASELINE.to_coords(best_vals), best])
-    return {"effect": effect_name, "values": {**current, **f.values}, "fit_cost": f.cost, "nfev": f.nfev}
+    # the start's values besides the fitted coordinates (say the force exponent's pivot) stay
+    f = fit(prob.with_base(best_vals), [BASELINE, eff], [BASELINE.to_coords(best_vals), best])
+    return {"effect": effect_name, "values": {**current, **best_vals, **f.values}, "fit_cost": f.cost,
+            "nfev": f.nfev}
 
 
 def _worker(args: tuple[Problem, dict[str, float], str]) -> dict:

@@ -15,7 +15,7 @@ Figures for the calibrated baseline ("before") and the final model ("after"):
 
 The verdict (``diagnosis.json``'s ``verdict``):
 
-- ``calibration failed`` when a calibrated parameter ends on its bound;
+- ``calibration failed`` when a calibrated parameter of the final model ends on its bound;
 - ``unexplained: <location>`` when the final model's innovations keep a predictable share above
   :data:`UNEXPLAINED_SHARE`, or its k-step prediction fits y worse than :data:`MIN_PREDICTION_FIT`;
   the location is where the catalogue's corrections (grouped by where they act on the loop:
@@ -159,11 +159,14 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     after = figures(rec, final, sims["after"], noise)
     warnings: list[str] = []
     (sb, pb), (sf, pf) = on_bounds(baseline), on_bounds(final)
-    bounds = sorted(set(sb) | set(sf))
-    for text in sorted(set(pb) | set(pf)):
+    bounds = sf       # the final model's: the calibration failed
+    for text in pf:
         warnings.append(f"{text} sits on its physical limit: the record does not resolve it")
+    if sb and not sf:
+        warnings.append("the calibrated baseline ran onto a bound (" + "; ".join(sb) + "): it lacked what the "
+                        "final model adds, whose calibration stays inside every bound")
     if bounds:
-        warnings.append("calibrated parameter(s) on a bound of their range: " + "; ".join(bounds)
+        warnings.append("calibrated parameter(s) of the final model on a bound of their range: " + "; ".join(bounds)
                         + ": the calibration failed, and the figures below are those of a model that does not fit")
     last_round = max((c["round"] for c in candidates), default=0)
     evidence: dict[str, dict] = {}
