@@ -402,11 +402,14 @@ def _catalogue_help() -> str:
     from .diagnosis import CATALOGUE
     from .fast import param_table
 
-    lines = ["effect catalogue (name: FMU parameters [unit], what it models):"]
+    from .diagnosis.effects import DEFAULT_EFFECTS
+
+    lines = ["effect catalogue (name: FMU parameters [unit], what it models; * = opt-in with --effects):"]
     table = param_table()
     for e in CATALOGUE.values():
         pars = ", ".join(f"{n} [{table[n][3]}]" for n in e.params)
-        lines.append(f"  {e.name}: {pars}\n      {e.description}")
+        star = "" if e.name in DEFAULT_EFFECTS else " *"
+        lines.append(f"  {e.name}{star}: {pars}\n      {e.description}")
     return "\n".join(lines)
 
 

@@ -28,7 +28,7 @@ from ..record import Record
 from ..metrics import nrmse_fit
 from ..replay import HORIZON_S, baseline_params, estimate_noise
 from .acceptance import BLOCK, CRITERION, accept
-from .effects import BASELINE, CATALOGUE, Parameterization
+from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, Parameterization
 from .verdict import Verdict, conclude
 from .problem import Problem, cost_on, fit, residuals
 from .residual import analyse_residual, effective_samples, noise_floor
@@ -105,7 +105,8 @@ def rms(rec: Record, sim: Mapping[str, np.ndarray]) -> dict[str, float]:
             "rms_u": float(np.sqrt(np.mean((rec.u - sim["u"]) ** 2)))}
 
 
-#: Free-run fit of y [%] below which the fits use the k-step prediction instead (prediction mode).
+#: Free-run fit of y [%] of the final model below which the search is done again on the k-step
+#: prediction (prediction mode).
 FREE_RUN_MIN_FIT = 90.0
 
 
@@ -154,21 +155,21 @@ def calibrate(rec: Record, base: dict[str, float], fit_mask: np.ndarray, say: Sa
     before = rms(rec, sim)
     say(f"calibrated baseline: rms_y {before['rms_y']:.5f} MU, rms_u {before['rms_u']:.5f} MU")
     prob = Problem(rec, base, max(before["rms_y"], 1e-6), max(before["rms_u"], 1e-6), fit_mask)
-    fit_y = nrmse_fit(rec.y, sim["y"])
-    if fit_y >= FREE_RUN_MIN_FIT:
-        return Calibration(prob, dict(cal.values), sim0, sim)
-    # The free run cannot follow the record (a loop that rings, a disturbance that drives it): fit
-    # the k-step prediction of a filter that follows the measured past instead (prediction mode).
-    say(f"the free run follows y by only {fit_y:.1f} % (below {FREE_RUN_MIN_FIT:.0f} %): fitting the "
-        f"{HORIZON_S * 1e3:.0f} ms prediction of a Kalman filter instead; estimating the disturbances first")
-    noise = estimate_noise(rec, {**base, **cal.values})
-    pprob = Problem(rec, base, 1.0, 1.0, fit_mask, noise=noise)
-    pprob = _weighted(pprob, cal.values)
-    cal = fit(pprob, [BASELINE], [BASELINE.to_coords({**base, **cal.values})])
-    sim = prob.free_run(cal.values)
+    return Calibration(prob, dict(cal.values), sim0, sim)
+
+
+def calibrate_by_prediction(rec: Record, base: dict[str, float], fit_mask: np.ndarray, free: Calibration,
+                            say: Say) -> Calibration:
+    """The calibration again, on the k-step prediction of a filter that follows the measured past
+    (prediction mode): for records whose free run cannot follow them even with the effects found
+    (a loop that rings near instability, a disturbance that drives it)."""
+    say(f"estimating the disturbances, then calibrating on the {HORIZON_S * 1e3:.0f} ms prediction")
+    noise = estimate_noise(rec, {**base, **free.values})
+    pprob = _weighted(Problem(rec, base, 1.0, 1.0, fit_mask, noise=noise), free.values)
+    cal = fit(pprob, [BASELINE], [BASELINE.to_coords({**base, **free.values})])
     pprob = _weighted(pprob, cal.values)
     say(f"calibrated baseline (prediction mode): k-step rms_y {pprob.sigma_y:.5f} MU, rms_u {pprob.sigma_u:.5f} MU")
-    return Calibration(pprob, dict(cal.values), sim0, sim)
+    return Calibration(pprob, dict(cal.values), free.raw, pprob.free_run(cal.values))
 
 
 def _weighted(prob: Problem, values: Mapping[str, float]) -> Problem:
@@ -387,7 +388,8 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
     rec : Record
         The closed-loop record.
     effects : sequence of str, optional
-        The catalogue entries to consider (default: all of :data:`~.effects.CATALOGUE`).
+        The catalogue entries to consider (default: :data:`~.effects.DEFAULT_EFFECTS`, the
+        catalogue but for the opt-in ``coulomb_friction``).
     workers : int, optional
         Processes for the candidate fits (default: 2, or 1 on a one-core machine).
     progress : callable, optional
@@ -406,7 +408,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
               start: Mapping[str, float] | None) -> Diagnosis:
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
-    effects = list(CATALOGUE) if effects is None else list(effects)
+    effects = list(DEFAULT_EFFECTS) if effects is None else list(effects)
     for e in effects:
         if e not in CATALOGUE:
             raise ValueError(f"unknown effect {e!r}: choose from {', '.join(CATALOGUE)}")
@@ -419,6 +421,16 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
     found = search(cal.prob, dict(cal.values), effects, ~fit_mask, workers, say)
     final_values, unc = refit(cal.prob, found.values, found.selected, say)
     sim_after = cal.prob.free_run(final_values)
+    fit_y = nrmse_fit(rec.y, sim_after["y"])
+    if fit_y < FREE_RUN_MIN_FIT:
+        # Even with what the search found, the free run cannot follow the record: search again on
+        # the k-step prediction error, which stays meaningful when the loop rings.
+        say(f"the final model's free run follows y by only {fit_y:.1f} % (below {FREE_RUN_MIN_FIT:.0f} %): "
+            "searching again in prediction mode")
+        cal = calibrate_by_prediction(rec, base, fit_mask, cal, say)
+        found = search(cal.prob, dict(cal.values), effects, ~fit_mask, workers, say)
+        final_values, unc = refit(cal.prob, found.values, found.selected, say)
+        sim_after = cal.prob.free_run(final_values)
     before, after = rms(rec, cal.sim), rms(rec, sim_after)
     residual_after = analyse_residual(rec, sim_after)
     noise = noise_floor(rec)
