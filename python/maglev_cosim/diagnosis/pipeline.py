@@ -322,7 +322,7 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
 
 def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], say: Say) -> tuple[dict, dict]:
     say(f"refitting the final model ({', '.join(selected) or 'baseline only'}) on the whole record")
-    whole = prob.with_mask(np.ones(prob.rec.n, bool))
+    whole = prob.with_base(current).with_mask(np.ones(prob.rec.n, bool))   # values besides the fitted ones stay
     parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in selected)]
     final = fit(whole, parts, [p.to_coords(current) for p in parts], max_nfev=40)
     values = {**current, **final.values}
