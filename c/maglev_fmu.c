@@ -152,8 +152,13 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
     (void)fmuResourceLocation;
     (void)visible;
-    if (!functions || !functions->allocateMemory || !functions->freeMemory) return NULL;
+    /* every NULL returned is explained through the logger, when there is one (FMI 2.0, fmi2Instantiate) */
+    if (!functions) return NULL;
     const char *nm = instanceName ? instanceName : "(null)";
+    if (!functions->allocateMemory || !functions->freeMemory) {
+        emit(functions, nm, "fmi2Instantiate: the callbacks allocateMemory and freeMemory must be given");
+        return NULL;
+    }
     if (!instanceName || !*instanceName) {
         emit(functions, nm, "fmi2Instantiate: instanceName must be a non-empty string");
         return NULL;
@@ -167,7 +172,10 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         return NULL;
     }
     Fmu *f = functions->allocateMemory(1, sizeof *f);
-    if (!f) return NULL;
+    if (!f) {
+        emit(functions, nm, "fmi2Instantiate: out of memory (allocateMemory returned NULL)");
+        return NULL;
+    }
     memset(f, 0, sizeof *f);
     snprintf(f->name, sizeof f->name, "%s", instanceName);
     f->cb = *functions;
@@ -530,9 +538,11 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2R
     if (f->stop_defined && currentCommunicationPoint + communicationStepSize > f->stop_time * (1 + 1e-12) + 1e-12)
         return error(f, "fmi2DoStep: step to %.17g goes past stopTime %.17g",
                      currentCommunicationPoint + communicationStepSize, f->stop_time);
-    /* the importer's time is the reference: absorb rounding between its clock and ours */
+    /* the importer's time is the reference: absorb rounding between its clock and ours (for a step
+     * taken; a refused step leaves the time as it was, which may be the only one in range) */
     f->plant.time = currentCommunicationPoint;
     int rc = maglev_step(&f->plant, communicationStepSize, &f->alloc, msg, sizeof msg);
+    if (rc) f->plant.time = t;
     if (rc == MAGLEV_REFUSED) return error(f, "fmi2DoStep: %s", msg); /* nothing changed: shorter steps will do */
     if (rc) {
         f->state = Error; /* the model broke down; the values are those before the step */

@@ -657,6 +657,63 @@ static void test_deserialize_checks_values(void) {
     fmi2FreeInstance(c);
 }
 
+/* 11: an fmi2Instantiate that returns NULL has told the logger why (FMI 2.0, fmi2Instantiate), also when
+ * the importer's allocator fails or is missing (found by tests/c/fuzz_fmu.c). */
+static void *failing_calloc(size_t n, size_t size) {
+    (void)n; (void)size;
+    return NULL;
+}
+
+static void test_instantiate_failure_logged(void) {
+    fmi2CallbackFunctions cb = {logger, failing_calloc, free, NULL, NULL};
+    int before = n_logs;
+    last_log[0] = 0;
+    CHECK(fmi2Instantiate("oom", fmi2CoSimulation, GUID, NULL, &cb, fmi2False, fmi2False) == NULL, "no memory, yet an instance");
+    CHECK(n_logs > before && logged("memory"), "NULL without a log message on a failed allocation: %s", last_log);
+    cb.allocateMemory = NULL;
+    before = n_logs;
+    last_log[0] = 0;
+    CHECK(fmi2Instantiate("noalloc", fmi2CoSimulation, GUID, NULL, &cb, fmi2False, fmi2False) == NULL, "no allocator accepted");
+    CHECK(n_logs > before && logged("allocateMemory"), "NULL without a log message on a missing allocator: %s", last_log);
+}
+
+/* 12: a refused fmi2DoStep leaves the time where it was, although the FMU absorbs a communication point
+ * within rounding of its time: near the end of the time range, the point it was handed would lie outside,
+ * and the FMU's own state could no longer be restored (found by tests/c/fuzz_fmu.c). */
+static void test_refused_step_keeps_time(void) {
+    fmi2Component c = make("edge");
+    const double t0 = -MAGLEV_TIME_MAX;
+    fmi2SetupExperiment(c, fmi2False, 0, t0, fmi2False, 0);
+    fmi2EnterInitializationMode(c);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "init at t = %g: %s", t0, last_log);
+    /* 0.5 s before t0 is within the matching tolerance at |t| = 1e9; the step would end before -1e9 s */
+    CHECK(fmi2DoStep(c, t0 - 0.5, 1e-3, fmi2True) == fmi2Error && logged("time range"), "step out of range: %s", last_log);
+    double t = 0;
+    CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == t0, "refused step moved the time to %.17g", t);
+    fmi2FMUstate s = NULL, r = NULL;
+    size_t size = 0;
+    fmi2GetFMUstate(c, &s);
+    fmi2SerializedFMUstateSize(c, s, &size);
+    fmi2Byte *buf = malloc(size);
+    fmi2SerializeFMUstate(c, s, buf, size);
+    CHECK(fmi2DeSerializeFMUstate(c, buf, size, &r) == fmi2OK, "own state after a refused step refused: %s", last_log);
+    free(buf);
+    /* a step refused for its work budget keeps the time too (levitating at 1 us substeps, as in test 4) */
+    fmi2Component d = make("budget");
+    double x = 0.0032, i = (8.3e-3 - x) * sqrt(8.4e-3 * 9.81 / 6.9e-6);
+    fmi2ValueReference vr[] = {VR_x_start, VR_i_start, VR_u, VR_solver_step};
+    double val[] = {x, i, i / 1.5, 1e-6};
+    fmi2SetReal(d, vr, 4, val);
+    fmi2SetupExperiment(d, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(d);
+    fmi2ExitInitializationMode(d);
+    double t1 = 1e-13; /* within rounding of 0: a step that is taken starts there */
+    CHECK(fmi2DoStep(d, t1, 10.0, fmi2True) == fmi2Error && logged("RK4 steps"), "10 s at 1 us substeps: %s", last_log);
+    CHECK(fmi2GetRealStatus(d, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 0.0, "refused step moved the time to %.17g", t);
+    fmi2FreeInstance(c);
+    fmi2FreeInstance(d);
+}
+
 int main(void) {
     test_instantiate_arguments();
     test_call_sequence();
@@ -674,6 +731,8 @@ int main(void) {
     test_free_instance_frees_states();
     test_deserialize_checks_values();
     test_new_effects();
+    test_instantiate_failure_logged();
+    test_refused_step_keeps_time();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }
