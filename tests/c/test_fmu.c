@@ -8,23 +8,12 @@
 
 #include "fmi2Functions.h"
 #include "maglev_plant.h"
+#include "check.h"
 
 #define GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 
-static int failures = 0, checks = 0;
 static char last_log[1024];
 static int n_logs = 0;
-
-#define CHECK(cond, ...)                                                    \
-    do {                                                                    \
-        checks++;                                                           \
-        if (!(cond)) {                                                      \
-            failures++;                                                     \
-            fprintf(stderr, "FAIL %s:%d: %s -- ", __FILE__, __LINE__, #cond); \
-            fprintf(stderr, __VA_ARGS__);                                   \
-            fprintf(stderr, "\n");                                          \
-        }                                                                   \
-    } while (0)
 
 static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
                    fmi2String fmt, ...) {
@@ -46,19 +35,24 @@ static fmi2Component make(const char *name) {
 
 static const fmi2ValueReference VR_OUT[] = {VR_y, VR_x, VR_v, VR_i};
 
-/* Instantiated, with the ball at the 3.2 mm equilibrium of the Section 3 parameters. */
-static fmi2Component make_levitating(const char *name, double *u_eq) {
+/* Initialised, with the ball at the 3.2 mm equilibrium of the Section 3 parameters, and one more
+ * parameter set before initialisation (none when extra is VR_u). */
+static fmi2Component make_levitating_with(const char *name, MaglevVR extra, double value, double *u_eq) {
     fmi2Component c = make(name);
     double x = 0.0032, m = 8.4e-3, g = 9.81, kc = 6.9e-6, x0 = 8.3e-3;
     double i = (x0 - x) * sqrt(m * g / kc);
     *u_eq = i / (0.3 * 5.0);
-    fmi2ValueReference vr[] = {VR_x_start, VR_i_start, VR_u};
-    double val[] = {x, i, *u_eq};
-    fmi2SetReal(c, vr, 3, val);
+    fmi2ValueReference vr[] = {VR_x_start, VR_i_start, VR_u, extra};
+    double val[] = {x, i, *u_eq, value};
+    CHECK(fmi2SetReal(c, vr, extra == VR_u ? 3 : 4, val) == fmi2OK, "setting up %s: %s", name, last_log);
     fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
     fmi2EnterInitializationMode(c);
-    fmi2ExitInitializationMode(c);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "initialising %s: %s", name, last_log);
     return c;
+}
+
+static fmi2Component make_levitating(const char *name, double *u_eq) {
+    return make_levitating_with(name, VR_u, 0.0, u_eq);
 }
 
 static void test_instantiate_arguments(void) {
@@ -372,15 +366,9 @@ static void test_step_work_bounded(void) {
     fmi2GetReal(c, VR_OUT, 4, before);
     fmi2FreeInstance(c);
     /* levitating at solver_step = 1e-6 the ball stays off the stops for about a second: 1e6 substeps */
-    c = make("budget2");
     {
-        double x = 0.0032, i = (8.3e-3 - x) * sqrt(8.4e-3 * 9.81 / 6.9e-6);
-        fmi2ValueReference vr[] = {VR_x_start, VR_i_start, VR_u, VR_solver_step};
-        double val[] = {x, i, i / 1.5, 1e-6};
-        fmi2SetReal(c, vr, 4, val);
-        fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
-        fmi2EnterInitializationMode(c);
-        fmi2ExitInitializationMode(c);
+        double u_eq;
+        c = make_levitating_with("budget2", VR_solver_step, 1e-6, &u_eq);
     }
     fmi2GetReal(c, VR_OUT, 4, before);
     last_log[0] = 0;
@@ -576,17 +564,7 @@ static unsigned long long fnv1a(const fmi2Byte *b, size_t n) {
  * default, each changes the levitating ball's response when on, and x_n must lie below x_0. */
 static double levitate_with(MaglevVR vr, double value, double *x_end) {
     double u_eq;
-    fmi2Component c = make("effects");
-    fmi2ValueReference vrs[] = {VR_x_start, VR_i_start, VR_u};
-    double x = 0.0032, m = 8.4e-3, g = 9.81, kc = 6.9e-6, x0 = 8.3e-3;
-    double i = (x0 - x) * sqrt(m * g / kc);
-    u_eq = i / (0.3 * 5.0);
-    double vals[] = {x, i, u_eq};
-    fmi2SetReal(c, vrs, 3, vals);
-    CHECK(fmi2SetReal(c, &vr, 1, &value) == fmi2OK, "setting %s = %g: %s", maglev_variables[vr].name, value, last_log);
-    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
-    fmi2EnterInitializationMode(c);
-    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "init with %s: %s", maglev_variables[vr].name, last_log);
+    fmi2Component c = make_levitating_with(maglev_variables[vr].name, vr, value, &u_eq);
     fmi2ValueReference u = VR_u, out[] = {VR_y, VR_x};
     double kick = u_eq * 1.02, y[2] = {0, 0};
     fmi2SetReal(c, &u, 1, &kick);

@@ -8,18 +8,7 @@
 
 #include "maglev_plant.h"
 #include "maglev_replay.h"
-
-static int failures = 0, checks = 0;
-#define CHECK(cond, ...)                                                         \
-    do {                                                                         \
-        checks++;                                                                \
-        if (!(cond)) {                                                           \
-            failures++;                                                          \
-            fprintf(stderr, "FAIL %s:%d: %s -- ", __FILE__, __LINE__, #cond);    \
-            fprintf(stderr, __VA_ARGS__);                                        \
-            fprintf(stderr, "\n");                                               \
-        }                                                                        \
-    } while (0)
+#include "check.h"
 
 #define N 1500
 
