@@ -170,3 +170,15 @@ def test_bench_prints_tables(fmu_path, tmp_path):
     assert d["closed_loop"]["steps"] == 1000 and d["closed_loop"]["fast_us_per_step"] > 0
     assert "per step [us]" in r.stdout and "Communication-step independence" in r.stdout
     assert "cffi fast path" in r.stdout
+
+
+@pytest.mark.slow
+def test_demo_runs_every_stage_and_prints_the_truth_next_to_the_estimate(tmp_path):
+    """The README's main job (`scripts/demo.sh` runs this command)."""
+    r = cli("demo", "--out", str(tmp_path))
+    assert r.returncode == 0, r.stderr
+    assert "planted truth" in r.stdout and "T_d" in r.stdout
+    for f in ("step/step.png", "linearize.json", "linearize/root_locus.png", "diagnosis/report.html",
+              "diagnosis/diagnosis.json", "record_undeclared_effect.csv"):
+        assert (tmp_path / f).exists(), f
+    assert json.loads((tmp_path / "diagnosis" / "diagnosis.json").read_text())["verdict"] == "explained"

@@ -343,16 +343,15 @@ def cmd_demo(a: argparse.Namespace) -> dict:
     out = Path(a.out)
     fmu = ensure_fmu(None)
     _progress(f"FMU: {fmu}")
-    ns = argparse.Namespace(amplitude=0.05, reference="step", duration=2.0, params="section3", position=0.0032,
-                            out=str(out / "step"), fmu=str(fmu))
-    cmd_step(ns)
-    cmd_linearize(argparse.Namespace(position=0.0032, params="eq18", current=0.5612, json=str(out / "linearize.json"),
-                                     plots=str(out / "linearize")))
+    # each step through the real parser, so that the demo gets every option's default from one place
+    parse = build_parser().parse_args
+    cmd_step(parse(["step", "--out", str(out / "step"), "--fmu", str(fmu)]))
+    cmd_linearize(parse(["linearize", "--params", "eq18", "--current", "0.5612",
+                         "--json", str(out / "linearize.json"), "--plots", str(out / "linearize")]))
     rec_path = out / "record_undeclared_effect.csv"
-    cmd_synth(argparse.Namespace(out=str(rec_path), effect=["delay:T_d=0.0025"], reference="steps", duration=12.0,
-                                 seed=a.seed, no_noise=False, param=None))
-    d = cmd_diagnose(argparse.Namespace(record=str(rec_path), out=str(out / "diagnosis"), fmu=str(fmu),
-                                        effects=None, workers=None))
+    cmd_synth(parse(["synth", "--out", str(rec_path), "--effect", "delay:T_d=0.0025", "--reference", "steps",
+                     "--duration", "12", "--seed", str(a.seed)]))
+    d = cmd_diagnose(parse(["diagnose", str(rec_path), "--out", str(out / "diagnosis"), "--fmu", str(fmu)]))
     truth = json.loads(Path(str(rec_path) + ".truth.json").read_text())
     print(_truth_table(truth, d))
     print(f"demo done: see {out}/step, {out}/linearize, {out}/diagnosis/report.html (and report.md)")
