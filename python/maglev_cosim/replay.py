@@ -98,7 +98,8 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
     noise : NoiseModel
         The random force and sensor noise the filter assumes (:func:`estimate_noise`).
     horizon_s : float
-        Prediction horizon [s] (rounded to whole samples, at least one).
+        Prediction horizon [s] (rounded to whole samples, at least one); 0: no predictions, the
+        filter's innovations only.
     stride : int
         A prediction from every ``stride``-th sample (1: every sample).
 
@@ -109,7 +110,7 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
         earlier (NaN where none ends); ``innov`` [MU], ``innov_var`` [MU²]: one-step innovations.
     """
     start, u_hold = _start(rec, params)
-    horizon = max(1, int(round(horizon_s / rec.ts)))
+    horizon = max(1, int(round(horizon_s / rec.ts))) if horizon_s > 0 else 0   # 0: the filter alone
     return fast.predict(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold, q_force=noise.q_force,
                         f_force=noise.f_force, r_sensor=noise.r_sensor, horizon=horizon, stride=stride)
 
