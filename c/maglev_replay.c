@@ -249,28 +249,26 @@ static void put_state(MaglevPlant *m, const double s[NS]) {
     m->contact = CONTACT_NONE;
 }
 
-/* One sample of the model from plant state m with input u and disturbance force d held over it:
- * the plant step, then d's effect on the ball (exact for a force held constant: it adds linearly
- * to the mechanics, whatever the plant does). Works on a copy; the result goes to out. */
-static int model_step(const MaglevPlant *m, double u, double d, double ts, MaglevPlant *out, char *msg,
-                      size_t len) {
-    if (maglev_copy(out, m, &maglev_std_allocator)) {
-        snprintf(msg, len, "out of memory in the prediction-error replay");
+static int copy_plant(MaglevPlant *dst, const MaglevPlant *src, char *msg, size_t len) {
+    if (maglev_copy(dst, src, &maglev_std_allocator) == 0) return 0;
+    snprintf(msg, len, "out of memory in the prediction-error replay");
+    return -1;
+}
+
+/* One sample of the model, in place, with input u and disturbance force d held over it: the
+ * plant step, then d's effect on the ball (exact for a force held constant: it adds linearly to
+ * the mechanics, whatever the plant does). */
+static int advance(MaglevPlant *m, double u, double d, double ts, char *msg, size_t len) {
+    if (maglev_set_input(m, u, &maglev_std_allocator, msg, len) || maglev_step(m, ts, &maglev_std_allocator, msg, len))
         return -1;
-    }
-    if (maglev_set_input(out, u, &maglev_std_allocator, msg, len) ||
-        maglev_step(out, ts, &maglev_std_allocator, msg, len)) {
-        maglev_release(out, &maglev_std_allocator);
-        return -1;
-    }
     if (d != 0.0) {
         double acc = d / maglev_param(m, VR_m_k);
-        out->contact = CONTACT_NONE;
-        out->x += 0.5 * acc * ts * ts;
-        out->v += acc * ts;
+        m->contact = CONTACT_NONE;
+        m->x += 0.5 * acc * ts * ts;
+        m->v += acc * ts;
         double lo = maglev_param(m, VR_x_min), hi = maglev_param(m, VR_x_max);
-        if (out->x < lo) { out->x = lo; out->v = 0; }
-        if (out->x > hi) { out->x = hi; out->v = 0; }
+        if (m->x < lo) { m->x = lo; m->v = 0; }
+        if (m->x > hi) { m->x = hi; m->v = 0; }
     }
     return 0;
 }
@@ -348,22 +346,19 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
         (void)pid_step(pid, &ps, w[k], y[k]);
         /* prediction from here */
         if (f->horizon > 0 && k % (size_t)f->stride == 0 && k + (size_t)f->horizon < n) {
-            MaglevPlant cur, nxt;
+            MaglevPlant cur;
             PidState pp = ps;
             double dd = d, uin = u[k], yj = 0.0;
-            if (maglev_copy(&cur, &m, &maglev_std_allocator)) {
-                snprintf(msg, len, "out of memory in the prediction-error replay");
+            if (copy_plant(&cur, &m, msg, len)) {
                 rc = -1;
                 break;
             }
             for (int j = 1; j <= f->horizon; j++) {
                 cur.time = (double)(k + (size_t)j - 1) * ts;
-                if (model_step(&cur, uin, dd, ts, &nxt, msg, len)) {
+                if (advance(&cur, uin, dd, ts, msg, len)) {
                     rc = -1;
                     break;
                 }
-                maglev_release(&cur, &maglev_std_allocator);
-                cur = nxt;
                 dd *= a;
                 cur.time = (double)(k + (size_t)j) * ts;
                 yj = maglev_get(&cur, VR_y);
@@ -380,7 +375,12 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
         MaglevPlant nom, pert;
         double s0[NS], s1[NS];
         get_state(&m, d, s0);
-        if (model_step(&m, u[k], d, ts, &nom, msg, len)) {
+        if (copy_plant(&nom, &m, msg, len)) {
+            rc = -1;
+            break;
+        }
+        if (advance(&nom, u[k], d, ts, msg, len)) {
+            maglev_release(&nom, &maglev_std_allocator);
             rc = -1;
             break;
         }
@@ -388,7 +388,7 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
         int refresh = k % JAC_EVERY == 0 || nom.contact != CONTACT_NONE || m.contact != CONTACT_NONE;
         for (int j = 0; j < NS && rc == 0 && refresh; j++) {
             if (!active[j]) continue;
-            if (j == 4) { /* d enters the mechanics linearly (model_step), and decays by a */
+            if (j == 4) { /* d enters the mechanics linearly (advance), and decays by a */
                 A[0][4] = 0.5 * ts * ts / mk;
                 A[1][4] = ts / mk;
                 A[4][4] = a;
@@ -397,22 +397,19 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
             double sp[NS];
             memcpy(sp, s0, sizeof sp);
             sp[j] += delta[j];
-            MaglevPlant base;
-            if (maglev_copy(&base, &m, &maglev_std_allocator)) {
-                snprintf(msg, len, "out of memory in the prediction-error replay");
+            if (copy_plant(&pert, &m, msg, len)) {
                 rc = -1;
                 break;
             }
-            put_state(&base, sp);
-            if (model_step(&base, u[k], d, ts, &pert, msg, len)) {
-                maglev_release(&base, &maglev_std_allocator);
+            put_state(&pert, sp);
+            if (advance(&pert, u[k], d, ts, msg, len)) {
+                maglev_release(&pert, &maglev_std_allocator);
                 rc = -1;
                 break;
             }
             double s2[NS];
             get_state(&pert, a * d, s2);
             for (int i = 0; i < 4; i++) A[i][j] = (s2[i] - s1[i]) / delta[j];
-            maglev_release(&base, &maglev_std_allocator);
             maglev_release(&pert, &maglev_std_allocator);
         }
         maglev_release(&m, &maglev_std_allocator);

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import fast, formulas
-from .loop import simulate
-from .params import as_params, get_params
+from .loop import settled_start, simulate
+from .params import PlantParams, as_params, get_params
 from .pid import PID
 from .record import Record
 
@@ -31,16 +31,22 @@ def record_controller(rec: Record) -> PID:
     return PID(**rec.pid_kwargs())
 
 
+def _settled_at_first_reading(rec: Record, params: Mapping[str, float]) -> tuple[PlantParams, float]:
+    """``params`` checked as the FMU would, and the position [m] where the model reads ``y[0]``:
+    every replay of a record starts settled there."""
+    fast.check_params(params)
+    p = as_params(params)
+    return p, formulas.position(p, float(rec.y[0]))
+
+
 def replay(rec: Record, params: Mapping[str, float], *, w: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The record's closed loop simulated with ``params`` (FMU parameter values), settled at the
     position where the model reads ``y[0]``, on the fast backend.
 
     Returns arrays t [s], w, u, y [MU], x [m], v [m/s], i [A]. Raises ``ValueError`` (one line
     naming the variable) for a parameter set the FMU would refuse."""
-    fast.check_params(params)
-    p = as_params(params)
-    r = simulate(p, rec.w if w is None else w, controller=record_controller(rec), backend="fast",
-                 x_op=formulas.position(p, float(rec.y[0])))
+    p, x_op = _settled_at_first_reading(rec, params)
+    r = simulate(p, rec.w if w is None else w, controller=record_controller(rec), backend="fast", x_op=x_op)
     return r.signals()
 
 
@@ -73,14 +79,9 @@ class NoiseModel:
 HORIZON_S = 0.02
 
 
-def _start(rec: Record, params: Mapping[str, float]) -> tuple[dict[str, float], float]:
-    """FMU values with the settled start at the position ``y[0]`` reads, and the holding input."""
-    from .loop import settled_start
-
-    fast.check_params(params)
-    p = as_params(params)
-    start, u_hold = settled_start(p, formulas.position(p, float(rec.y[0])))
-    return start.to_start_values(), u_hold
+def horizon_samples(horizon_s: float, ts: float) -> int:
+    """A prediction horizon [s] in whole samples: at least one, or 0 (the filter alone) for 0 s."""
+    return max(1, int(round(horizon_s / ts))) if horizon_s > 0 else 0
 
 
 def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, horizon_s: float = HORIZON_S,
@@ -109,10 +110,11 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
         ``y_pred``, ``u_pred`` [MU]: the predictions of y[k], u[k] made ``horizon`` samples
         earlier (NaN where none ends); ``innov`` [MU], ``innov_var`` [MU²]: one-step innovations.
     """
-    start, u_hold = _start(rec, params)
-    horizon = max(1, int(round(horizon_s / rec.ts))) if horizon_s > 0 else 0   # 0: the filter alone
-    return fast.predict(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold, q_force=noise.q_force,
-                        f_force=noise.f_force, r_sensor=noise.r_sensor, horizon=horizon, stride=stride)
+    start, u_hold = settled_start(*_settled_at_first_reading(rec, params))
+    horizon = horizon_samples(horizon_s, rec.ts)
+    return fast.predict(start.to_start_values(), record_controller(rec), rec.w, rec.y, rec.u, u_hold,
+                        q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizon=horizon,
+                        stride=stride)
 
 
 def innovation_nll(rec: Record, params: Mapping[str, float], noise: NoiseModel, skip: int = 200) -> float:

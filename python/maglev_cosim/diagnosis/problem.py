@@ -11,7 +11,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..record import Record
-from ..replay import HORIZON_S, NoiseModel, predict, replay
+from ..replay import HORIZON_S, NoiseModel, horizon_samples, predict, replay
 
 if TYPE_CHECKING:
     from .effects import Parameterization
@@ -54,7 +54,7 @@ class Problem:
         n = self.rec.n
         if self.noise is None:
             return np.ones(n, bool)
-        k = max(1, int(round(self.horizon_s / self.rec.ts)))
+        k = horizon_samples(self.horizon_s, self.rec.ts)
         out = np.zeros(n, bool)
         out[np.arange(0, max(n - k, 0), self.stride) + k] = True
         return out
