@@ -102,3 +102,10 @@ def test_bounds_that_are_search_limits_fail_the_calibration_physical_ones_do_not
     assert [s.split(" =")[0] for s in search] == ["x_0"]
     assert [s.split(" =")[0] for s in physical] == ["k_FV"]
     assert on_bounds(base) == ([], [])
+
+
+def test_every_catalogue_effect_says_where_it_acts():
+    from maglev_cosim.diagnosis.effects import CATALOGUE
+
+    assert {e.location for e in CATALOGUE.values()} == {"actuator", "mechanics", "sensor"}
+    assert all(e.location in ("actuator", "mechanics", "sensor") for e in CATALOGUE.values())

@@ -67,6 +67,7 @@ class Effect(Parameterization):
 
     name: str = ""
     description: str = ""
+    location: str = ""       # where it acts on the loop: "actuator", "mechanics" or "sensor"
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         """Starting coordinates, placed from the record where the cost is flat or multimodal."""
@@ -91,8 +92,8 @@ class _TimeConstant(Effect):
     """A lag or a delay: one time constant. Near the stability limit the replay error is far from
     quadratic in it, and a coarse start can leave least squares in a side valley: a dense grid."""
 
-    def __init__(self, name: str, param: str, lo: float, description: str) -> None:
-        self.name, self.description, self.params = name, description, (param,)
+    def __init__(self, name: str, param: str, lo: float, location: str, description: str) -> None:
+        self.name, self.description, self.params, self.location = name, description, (param,), location
         self.coords = (Coord(param, 1e-3, lo, 0.05),)
 
     def is_off(self, values: Mapping[str, float]) -> bool:
@@ -107,6 +108,7 @@ class _TimeConstant(Effect):
 class SensorNonlinearity(Effect):
     name = "sensor_nonlinearity"
     description = "the sensor's deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12"
+    location = "sensor"
     params = ("k_x2",)
     coords = (Coord("k_x2", 1e4, -1e6, 1e6),)
 
@@ -134,6 +136,7 @@ class SensorNonlinearity(Effect):
 class CurrentSaturation(Effect):
     name = "current_saturation"
     description = "an amplifier current limit i_max below the 1.5 A the D/A range implies"
+    location = "actuator"
     params = ("i_max",)
     coords = (Coord("i_max", 0.05, 0.2, 1.5),)
 
@@ -153,6 +156,7 @@ class PeriodicDisturbance(Effect):
 
     name = "periodic_disturbance"
     description = "sinusoidal pickup A_d*sin(2*pi*f_d*t + phi_d) on the sensor voltage"
+    location = "sensor"
     params = ("A_d", "f_d", "phi_d")
     coords = (Coord("a", 0.01, -1.0, 1.0), Coord("b", 0.01, -1.0, 1.0), Coord("f_d", 0.01, 0.5, 450.0))
 
@@ -289,11 +293,11 @@ class AmplifierDeadZone(Effect):
 
 
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
-    _TimeConstant("amplifier_lag", "T_a", 0.0, "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5"),
+    _TimeConstant("amplifier_lag", "T_a", 0.0, "actuator", "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5"),
     # below 50 us a force lag is invisible at 1 kHz
-    _TimeConstant("force_lag", "T_F", 5e-5, "the magnetic force following the static law through a lag T_F "
+    _TimeConstant("force_lag", "T_F", 5e-5, "mechanics", "the magnetic force following the static law through a lag T_F "
                   "(eddy currents)"),
-    _TimeConstant("delay", "T_d", 0.0, "a transport delay T_d of the D/A signal (computation and I/O)"),
+    _TimeConstant("delay", "T_d", 0.0, "actuator", "a transport delay T_d of the D/A signal (computation and I/O)"),
     SensorNonlinearity(),
     CurrentSaturation(),
     PeriodicDisturbance(),

@@ -48,18 +48,9 @@ MIN_PREDICTION_FIT = 80.0
 #: Relative distance to a bound that counts as "on the bound".
 ON_BOUND = 1e-3
 
-#: Where each catalogue effect acts on the loop (effects may also say it themselves).
-LOCATIONS = {
-    "amplifier_lag": "actuator", "delay": "actuator", "current_saturation": "actuator",
-    "amplifier_dead_zone": "actuator",
-    "force_lag": "mechanics", "coulomb_friction": "mechanics", "force_exponent": "mechanics",
-    "sensor_nonlinearity": "sensor", "periodic_disturbance": "sensor", "sensor_lag": "sensor",
-}
-
-
 def location_of(effect: str) -> str:
     """``actuator``, ``mechanics`` or ``sensor``: where the effect acts on the loop."""
-    return getattr(CATALOGUE.get(effect), "location", None) or LOCATIONS.get(effect, "undetermined")
+    return CATALOGUE[effect].location if effect in CATALOGUE else "undetermined"
 
 
 def predictable_share(innov: np.ndarray, u: np.ndarray, lags: int = ARX_LAGS) -> float:
