@@ -35,7 +35,7 @@ const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
     [VR_T_a] = {"T_a", MAGLEV_PARAMETER, 0.3e-3, 0.0, 1.0, "s", "Power amplifier time constant, Eq. 2 (Sec. 3.2); 0 means i = k_i*u, Eq. 5 (effect amplifier_lag)"},
     [VR_m_k] = {"m_k", MAGLEV_PARAMETER, 8.4e-3, 1e-6, 100.0, "kg", "Ball mass, Eq. 8 (Sec. 3.4.1)"},
     [VR_g] = {"g", MAGLEV_PARAMETER, 9.81, 1e-3, 100.0, "m/s2", "Gravitational acceleration, Eq. 8"},
-    [VR_k_c] = {"k_c", MAGLEV_PARAMETER, 6.9e-6, 1e-12, 1.0, "N.m2/A2", "Coil constant, Eq. 8 (Sec. 3.4.2, LQ fit)"},
+    [VR_k_c] = {"k_c", MAGLEV_PARAMETER, 6.9e-6, 0.0, 1.0, "N.m2/A2", "Coil constant, Eq. 8 (Sec. 3.4.2, LQ fit)"},
     [VR_x_0] = {"x_0", MAGLEV_PARAMETER, 8.3e-3, POS_M, "m", "Coil offset, Eq. 8 (Sec. 3.4.2, LQ fit)"},
     [VR_k_FV] = {"k_FV", MAGLEV_PARAMETER, 0.03, 0.0, 1e3, "N.s/m", "Viscous damping constant, Eq. 8 (Sec. 3.4.3)"},
     [VR_k_x] = {"k_x", MAGLEV_PARAMETER, 612.3, 1e-3, 1e6, "V/m", "Position sensor gain, Eq. 12 (Sec. 3.3)"},
@@ -59,6 +59,17 @@ const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
     [VR_n_F] = {"n_F", MAGLEV_PARAMETER, 2.0, 1.0, 4.0, "1", "Force-law exponent: F = k_c*i^2/(x_0 - x)^2 * ((x_0 - x_n)/(x_0 - x))^(n_F - 2) (effect force_exponent; 2 = Eq. 8)"},
     [VR_x_n] = {"x_n", MAGLEV_PARAMETER, 3.2e-3, POS_M, "m", "Position where a force-law exponent other than 2 leaves the force unchanged (the paper's operating point), below x_0"},
     [VR_u_dz] = {"u_dz", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "V", "Half-width of the amplifier's dead zone around 0 V input (effect amplifier_dead_zone; 0 = off)"},
+    [VR_k_e] = {"k_e", MAGLEV_PARAMETER, 0.0, 0.0, 1e3, "N/A2", "Gain of an exponential force law k_e*exp(-(x_0 - x)/z_e)*i^2 added to Eq. 8 (the form Inteco publishes; a rig with it sets k_c = 0; 0 = off)"},
+    [VR_z_e] = {"z_e", MAGLEV_PARAMETER, 5e-3, 1e-6, 1.0, "m", "Decay length of the exponential force law"},
+    [VR_R_c] = {"R_c", MAGLEV_PARAMETER, 0.0, 0.0, 1e4, "Ohm", "Coil resistance; > 0 selects a voltage drive: L(x, i)*di/dt = V - R_c*i - i*dL/dx*v with V the D/A voltage (Eq. 1, at least V_min), k_i and T_a unused; 0 = the current amplifier of Eq. 2"},
+    [VR_L_0] = {"L_0", MAGLEV_PARAMETER, 0.1, 1e-6, 100.0, "H", "Coil inductance of a voltage drive far from the ball: L = L_0 + L_x*exp(-(x_0 - x)/z_L) + L_g/(x_0 - x) + L_i*atan(a_i*i - b_i)"},
+    [VR_L_x] = {"L_x", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "H", "Inductance the ball adds at the coil (x = x_0)"},
+    [VR_z_L] = {"z_L", MAGLEV_PARAMETER, 5e-3, 1e-6, 1.0, "m", "Decay length of the ball's inductance"},
+    [VR_L_g] = {"L_g", MAGLEV_PARAMETER, 0.0, 0.0, 10.0, "H.m", "Inductance of the inverse-gap form L_g/(x_0 - x) (a rig whose force follows Eq. 8 from L(x): L_g = 2*k_c)"},
+    [VR_L_i] = {"L_i", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "H", "Current dependence (saturation) of the inductance, below L_0*2/pi"},
+    [VR_a_i] = {"a_i", MAGLEV_PARAMETER, 1.0, 0.0, 1e3, "1/A", "Current scale of the inductance's current dependence"},
+    [VR_b_i] = {"b_i", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "1", "Offset of the inductance's current dependence"},
+    [VR_V_min] = {"V_min", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "V", "Lowest coil voltage a voltage drive applies (a PWM stage's floor)"},
     [VR_solver_step] = {"solver_step", MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step"},
     [VR_F] = {"F", MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8"},
 };
@@ -106,11 +117,21 @@ int maglev_check_value(MaglevVR vr, double value, char *msg, size_t len) {
 int maglev_check_params(const MaglevPlant *m, char *msg, size_t len) {
     for (int vr = MAGLEV_FIRST_PARAM; vr <= VR_solver_step; vr++)
         if (maglev_check_value((MaglevVR)vr, maglev_param(m, (MaglevVR)vr), msg, len)) return -1;
-    if (!(P(m, x_max) < P(m, x_0)))
+    /* Eq. 8 is singular at x_0; the exponential law alone (k_c = 0) lets the ball touch the coil */
+    if (P(m, k_c) > 0 ? !(P(m, x_max) < P(m, x_0)) : !(P(m, x_max) <= P(m, x_0)))
         return fail(msg, len, "variable x_max: must be below x_0 = %g m (force law singular at x_0), got %g",
                     P(m, x_0), P(m, x_max));
     if (!(P(m, x_min) < P(m, x_max)))
         return fail(msg, len, "variable x_min: must be below x_max = %g m, got %g", P(m, x_max), P(m, x_min));
+    if (P(m, L_g) > 0 && !(P(m, x_max) < P(m, x_0)))
+        return fail(msg, len, "variable L_g: the inverse-gap inductance needs x_max below x_0 = %g m, got x_max = %g",
+                    P(m, x_0), P(m, x_max));
+    if (!(P(m, k_c) > 0 || P(m, k_e) > 0))
+        return fail(msg, len, "variable k_c: the force law needs k_c > 0 or k_e > 0, got k_c = %g, k_e = %g",
+                    P(m, k_c), P(m, k_e));
+    if (!(P(m, L_0) - P(m, L_i) * PI / 2 > 0))
+        return fail(msg, len, "variable L_i: must stay below L_0*2/pi = %g H so that the inductance stays positive, "
+                    "got %g", P(m, L_0) * 2 / PI, P(m, L_i));
     if (!(P(m, x_n) < P(m, x_0)))
         return fail(msg, len, "variable x_n: must be below x_0 = %g m, got %g", P(m, x_0), P(m, x_n));
     if (P(m, x_start) < P(m, x_min) || P(m, x_start) > P(m, x_max))
@@ -152,11 +173,40 @@ int maglev_check_plant(const MaglevPlant *m, char *msg, size_t len) {
 
 /* ---- the equations ---- */
 
-static double current_command(const MaglevPlant *m, double u_mu) {
+static double drive_volts(const MaglevPlant *m, double u_mu) {
     double u_volt = P(m, k_DA) * clip(u_mu, -MU_LIMIT, MU_LIMIT) + P(m, u_0); /* Eq. 1 */
     if (P(m, u_dz) > 0) /* the amplifier's dead zone: no current for |u_volt| <= u_dz */
         u_volt = u_volt > P(m, u_dz) ? u_volt - P(m, u_dz) : (u_volt < -P(m, u_dz) ? u_volt + P(m, u_dz) : 0.0);
-    return clip(P(m, k_i) * u_volt, 0.0, P(m, i_max)); /* Eq. 2/5 */
+    return u_volt;
+}
+
+/* A voltage drive makes the current a state of its own (R_c > 0); otherwise it follows Eq. 2/5. */
+static int voltage_drive(const MaglevPlant *m) { return P(m, R_c) > 0; }
+
+static double current_command(const MaglevPlant *m, double u_mu) {
+    return clip(P(m, k_i) * drive_volts(m, u_mu), 0.0, P(m, i_max)); /* Eq. 2/5 */
+}
+
+/* The coil voltage of a voltage drive for input u_mu. */
+static double coil_volts(const MaglevPlant *m, double u_mu) {
+    double v = drive_volts(m, u_mu);
+    return v < P(m, V_min) ? P(m, V_min) : v;
+}
+
+/* di/dt of a voltage drive: d(L i)/dt = V - R_c*i with L(x, i); the ball's motion induces
+ * i*dL/dx*v. A current at 0 (the drive's freewheel diode) or at i_max does not pass it. */
+static double coil_rate(const MaglevPlant *m, double volts, double i, double x, double v) {
+    double gap = P(m, x_0) - x, e = P(m, L_x) * exp(-gap / P(m, z_L));
+    double a = P(m, a_i) * i - P(m, b_i);
+    double L = P(m, L_0) + e + P(m, L_i) * atan(a), dL_dx = e / P(m, z_L);
+    if (P(m, L_g) > 0) {
+        L += P(m, L_g) / gap;
+        dL_dx += P(m, L_g) / (gap * gap);
+    }
+    double dL_di = P(m, L_i) * P(m, a_i) / (1 + a * a);
+    double rate = (volts - P(m, R_c) * i - i * dL_dx * v) / (L + i * dL_di);
+    if ((i <= 0 && rate < 0) || (i >= P(m, i_max) && rate > 0)) return 0.0;
+    return rate;
 }
 
 /* (x_0 - x_n)/(x_0 - x) to the power n_F - 2: 1 for the paper's law (n_F = 2). */
@@ -164,7 +214,16 @@ static double exponent_factor(const MaglevPlant *m, double gap) {
     return P(m, n_F) == 2.0 ? 1.0 : pow((P(m, x_0) - P(m, x_n)) / gap, P(m, n_F) - 2.0);
 }
 
+/* The force per i^2 at x: Eq. 8 plus the exponential law. */
+static double force_gain(const MaglevPlant *m, double x) {
+    double gap = P(m, x_0) - x;
+    double k = P(m, k_c) > 0 ? P(m, k_c) / (gap * gap) * exponent_factor(m, gap) : 0.0; /* Eq. 8 */
+    if (P(m, k_e) > 0) k += P(m, k_e) * exp(-gap / P(m, z_e));
+    return k;
+}
+
 static double static_force(const MaglevPlant *m, double i, double x) {
+    if (P(m, k_e) > 0) return force_gain(m, x) * i * i;
     double gap = P(m, x_0) - x;
     return P(m, k_c) * i * i / (gap * gap) * exponent_factor(m, gap); /* Eq. 8 */
 }
@@ -197,7 +256,8 @@ static double delayed_input(const MaglevPlant *m, double t) {
 #define HOT static inline
 #endif
 
-typedef struct { double x, v, F; } Mech;
+/* The RK4 state: the current is integrated only with a voltage drive (else it is given). */
+typedef struct { double x, v, F, i; } Mech;
 
 typedef struct {
     const MaglevPlant *m;
@@ -205,18 +265,26 @@ typedef struct {
     double kc_m, kfv_m, x0; /* k_c/m_k, k_FV/m_k, x_0: the hot loop's constants */
     double fc_m;            /* F_c/m_k [m/s2] */
     int exponent;           /* n_F != 2 */
+    int law_e;              /* the exponential force law is on (k_e > 0) */
+    int voltage;            /* a voltage drive: the current is a state */
+    double volts;           /* its coil voltage in this piece */
     long *work;             /* RK4 evaluations spent in this maglev_step, against the budget */
 } Piece;
 
-static Piece make_piece(const MaglevPlant *m, double i0, double ic, long *work) {
+static Piece make_piece(const MaglevPlant *m, double i0, double ic, double volts, long *work) {
     Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), P(m, F_c) / P(m, m_k),
-                P(m, n_F) != 2.0, work};
+                P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work};
     return pc;
 }
 
 HOT Mech deriv(const Piece *pc, double i, Mech s, int contact) {
     const MaglevPlant *m = pc->m;
     Mech d;
+    d.i = 0.0;
+    if (pc->voltage) {
+        d.i = coil_rate(m, pc->volts, s.i, s.x, contact ? 0.0 : s.v);
+        i = s.i;
+    }
     if (P(m, T_F) > 0) {
         double Fs = static_force(m, i, s.x);
         d.F = (Fs - s.F) / P(m, T_F);
@@ -228,15 +296,19 @@ HOT Mech deriv(const Piece *pc, double i, Mech s, int contact) {
     double gap = pc->x0 - s.x;
     d.F = 0.0;
     d.x = contact ? 0.0 : s.v;
-    double force = pc->kc_m * i * i / (gap * gap);
-    if (pc->exponent) force *= exponent_factor(m, gap);
+    double force = 0.0;
+    if (pc->kc_m > 0) {
+        force = pc->kc_m * i * i / (gap * gap);
+        if (pc->exponent) force *= exponent_factor(m, gap);
+    }
+    if (pc->law_e) force += P(m, k_e) / P(m, m_k) * exp(-gap / P(m, z_e)) * i * i;
     d.v = contact ? 0.0 : force - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
     if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
     return d;
 }
 
 HOT Mech axpy(Mech s, double a, Mech d) {
-    Mech r = {s.x + a * d.x, s.v + a * d.v, s.F + a * d.F};
+    Mech r = {s.x + a * d.x, s.v + a * d.v, s.F + a * d.F, s.i + a * d.i};
     return r;
 }
 
@@ -251,6 +323,8 @@ HOT Mech rk4_i(const Piece *pc, Mech s, double h, int contact, double ia, double
     r.x = s.x + h / 6 * (k1.x + 2 * k2.x + 2 * k3.x + k4.x);
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
     r.F = s.F + h / 6 * (k1.F + 2 * k2.F + 2 * k3.F + k4.F);
+    r.i = s.i;
+    if (pc->voltage) r.i = clip(s.i + h / 6 * (k1.i + 2 * k2.i + 2 * k3.i + k4.i), 0.0, P(pc->m, i_max));
     return r;
 }
 
@@ -261,7 +335,8 @@ static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
 
 static double force_now(const Piece *pc, double tau, Mech s) {
     const MaglevPlant *m = pc->m;
-    return P(m, T_F) > 0 ? s.F : static_force(m, current_at(m, pc->i0, pc->ic, tau), s.x);
+    if (P(m, T_F) > 0) return s.F;
+    return static_force(m, pc->voltage ? s.i : current_at(m, pc->i0, pc->ic, tau), s.x);
 }
 
 /* Net force pressing the ball onto the stop it touches (>= 0: stays). */
@@ -351,7 +426,7 @@ static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h
  * current transient must be over, so that the lag's input is constant. */
 static int stays_on_stop(const Piece *pc, Mech s, int contact, double i_now) {
     const MaglevPlant *m = pc->m;
-    if (!contact || s.v != 0.0) return 0;
+    if (!contact || s.v != 0.0 || pc->voltage) return 0; /* a voltage drive's current has no closed form */
     if (P(m, T_F) > 0 && fabs(i_now - pc->ic) > FF_CURRENT_EPS) return 0;
     double w = P(m, m_k) * P(m, g), sign = contact == CONTACT_UPPER ? 1.0 : -1.0;
     if (sign * (static_force(m, pc->ic, s.x) - w) < 0) return 0;
@@ -364,14 +439,18 @@ static int stays_on_stop(const Piece *pc, Mech s, int contact, double i_now) {
  * 1 kHz closed loop then agrees with the solve_ivp reference to 1e-8 MU); afterwards they grow
  * to solver_step. Returns -1 when the work budget runs out. */
 static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work) {
-    Piece pc = make_piece(m, m->i, current_command(m, u_eff), work);
-    Mech s = {m->x, m->v, m->F};
+    Piece pc = make_piece(m, m->i, current_command(m, u_eff), coil_volts(m, u_eff), work);
+    Mech s = {m->x, m->v, m->F, m->i};
     double hmax = P(m, solver_step);
     if (P(m, T_F) > 0 && P(m, T_F) / 2 < hmax) hmax = P(m, T_F) / 2;
     /* the smoothed friction's slope F_c/(m_k*v_c) is a fast rate near v = 0: keep RK4's h*rate <= 0.1 */
     if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c) < hmax) hmax = 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c);
     double hfine = hmax, t_fine = 0.0, di = fabs(pc.i0 - pc.ic);
-    if (P(m, T_a) > 0 && di > TRANSIENT_EPS) {
+    if (pc.voltage) { /* RK4 on the coil equation: keep h below a fifth of its smallest time constant */
+        double tau_e = (P(m, L_0) - P(m, L_i) * PI / 2) / P(m, R_c);
+        if (tau_e / 5 < hmax) hmax = tau_e / 5;
+        hfine = hmax;
+    } else if (P(m, T_a) > 0 && di > TRANSIENT_EPS) {
         if (P(m, T_a) / 8 < hfine) hfine = P(m, T_a) / 8;
         t_fine = P(m, T_a) * log(di / TRANSIENT_EPS);
         if (t_fine > len) t_fine = len;
@@ -416,7 +495,7 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
     m->x = s.x;
     m->v = s.v;
     m->F = P(m, T_F) > 0 ? s.F : 0.0;
-    m->i = clip(current_at(m, pc.i0, pc.ic, len), 0.0, P(m, i_max)); /* against rounding past the ends */
+    m->i = pc.voltage ? s.i : clip(current_at(m, pc.i0, pc.ic, len), 0.0, P(m, i_max)); /* against rounding past the ends */
     return 0;
 }
 
@@ -424,8 +503,11 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
 
 double maglev_force(const MaglevPlant *m, double i, double x, double *dF_dx, double *dF_di) {
     double gap = P(m, x_0) - x, F = static_force(m, i, x);
-    if (dF_dx) *dF_dx = P(m, n_F) * F / gap;                                       /* Eq. 16 */
-    if (dF_di) *dF_di = 2 * P(m, k_c) * i / (gap * gap) * exponent_factor(m, gap); /* Eq. 17 */
+    double Fp = P(m, k_c) > 0 ? P(m, k_c) * i * i / (gap * gap) * exponent_factor(m, gap) : 0.0; /* Eq. 8's share */
+    double Fe = P(m, k_e) > 0 ? P(m, k_e) * exp(-gap / P(m, z_e)) * i * i : 0.0;
+    if (dF_dx) *dF_dx = (P(m, k_c) > 0 ? P(m, n_F) * Fp / gap : 0.0) + Fe / P(m, z_e); /* Eq. 16 */
+    if (dF_di) *dF_di = P(m, k_e) > 0 ? 2 * i * force_gain(m, x)
+                                      : 2 * P(m, k_c) * i / (gap * gap) * exponent_factor(m, gap); /* Eq. 17 */
     return F;
 }
 
@@ -455,11 +537,12 @@ double maglev_position_for_reading(const MaglevPlant *m, double y, double t) {
 
 double maglev_equilibrium_current(const MaglevPlant *m, double x) {
     double gap = P(m, x_0) - x;
+    if (P(m, k_e) > 0) return sqrt(P(m, m_k) * P(m, g) / force_gain(m, x));
     return gap * sqrt(P(m, m_k) * P(m, g) / (P(m, k_c) * exponent_factor(m, gap))); /* Eq. 8 at rest */
 }
 
 double maglev_input_for_current(const MaglevPlant *m, double i) {
-    double volts = i / P(m, k_i) + (i > 0 ? P(m, u_dz) : 0.0); /* Eq. 5 inverted, past the dead zone */
+    double volts = (voltage_drive(m) ? P(m, R_c) * i : i / P(m, k_i)) + (i > 0 ? P(m, u_dz) : 0.0); /* Eq. 5 inverted, past the dead zone */
     return (volts - P(m, u_0)) / P(m, k_DA);                      /* Eq. 1 inverted */
 }
 
@@ -522,12 +605,12 @@ static int start_state(MaglevPlant *m, double t0, double u0, char *msg, size_t l
     m->u = u0;
     m->x = P(m, x_start);
     m->v = P(m, v_start);
-    m->i = P(m, T_a) > 0 ? P(m, i_start) : current_command(m, u0);
+    m->i = (P(m, T_a) > 0 || voltage_drive(m)) ? P(m, i_start) : current_command(m, u0);
     m->F = P(m, T_F) > 0 ? static_force(m, m->i, m->x) : 0.0;
     m->contact = CONTACT_NONE;
     long work = 0;
-    Piece pc = make_piece(m, m->i, m->i, &work);
-    Mech s = {m->x, m->v, m->F};
+    Piece pc = make_piece(m, m->i, m->i, coil_volts(m, u0), &work);
+    Mech s = {m->x, m->v, m->F, m->i};
     if (m->x >= P(m, x_max) && (m->v > 0 || (m->v == 0 && press(&pc, 0, s, CONTACT_UPPER) >= 0))) {
         m->contact = CONTACT_UPPER;
         m->v = 0;
@@ -565,7 +648,7 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
     /* a failed step leaves the plant as it was (the history is not touched by stepping) */
     MaglevPlant before = *m;
     long work = 0;
-    if (P(m, T_a) <= 0) m->i = current_command(m, delayed_input(m, m->time));
+    if (P(m, T_a) <= 0 && !voltage_drive(m)) m->i = current_command(m, delayed_input(m, m->time));
     while (m->time < t_end) {
         double next = t_end;
         if (P(m, T_d) > 0) { /* the next instant the delayed input changes */
@@ -588,7 +671,7 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
         m->time = next;
     }
     m->time = t_end;
-    if (P(m, T_a) <= 0) m->i = current_command(m, delayed_input(m, m->time));
+    if (P(m, T_a) <= 0 && !voltage_drive(m)) m->i = current_command(m, delayed_input(m, m->time));
     if (!isfinite(m->x) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F)) {
         double x = m->x, v = m->v, i = m->i;
         *m = before;
@@ -604,7 +687,7 @@ double maglev_get(const MaglevPlant *m, MaglevVR vr) {
     case VR_x: return m->x;
     case VR_v: return m->v;
     case VR_i:
-        return P(m, T_a) > 0 ? m->i : current_command(m, delayed_input(m, m->time));
+        return (P(m, T_a) > 0 || voltage_drive(m)) ? m->i : current_command(m, delayed_input(m, m->time));
     case VR_F: {
         if (P(m, T_F) > 0) return m->F;
         return static_force(m, maglev_get(m, VR_i), m->x);

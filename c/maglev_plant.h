@@ -43,6 +43,17 @@ typedef enum {
     VR_n_F,
     VR_x_n,
     VR_u_dz,
+    VR_k_e,
+    VR_z_e,
+    VR_R_c,
+    VR_L_0,
+    VR_L_x,
+    VR_z_L,
+    VR_L_g,
+    VR_L_i,
+    VR_a_i,
+    VR_b_i,
+    VR_V_min,
     VR_solver_step,
     VR_F,
     MAGLEV_NVARS
@@ -154,7 +165,7 @@ double maglev_reading(const MaglevPlant *m, double x, double t);
 /* The position between the stops whose reading at time t is y (the nearest stop when none is). */
 double maglev_position_for_reading(const MaglevPlant *m, double y, double t);
 /* The current holding the ball at rest at x (Eq. 8 with x'' = x' = 0), and the D/A input giving a
- * current (Eq. 1, 5), neither limited. */
+ * steady current (Eq. 1, 5; with a voltage drive, R_c*i), neither limited. */
 double maglev_equilibrium_current(const MaglevPlant *m, double x);
 double maglev_input_for_current(const MaglevPlant *m, double i);
 

@@ -79,7 +79,7 @@ def test_plant_params_validate_with_the_c_rules():
     from maglev_cosim.params import PlantParams
 
     PlantParams().validate()
-    with pytest.raises(ValueError, match=r"variable k_c: must be in \[1e-12, 1\] N.m2/A2, got -1"):
+    with pytest.raises(ValueError, match=r"variable k_c: must be in \[0, 1\] N.m2/A2, got -1"):
         PlantParams(k_c=-1.0).validate()
     with pytest.raises(ValueError, match="variable x_max: must be below x_0"):
         PlantParams(x_max=9e-3).validate()

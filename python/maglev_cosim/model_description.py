@@ -47,6 +47,11 @@ _UNITS: dict[str, dict[str, float]] = {
     "N.s/m": {"kg": 1, "s": -1},
     "Hz": {"s": -1},
     "rad": {"rad": 1},
+    "N/A2": {"kg": 1, "m": 1, "s": -2, "A": -2},
+    "Ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
+    "H": {"kg": 1, "m": 2, "s": -2, "A": -2},
+    "1/A": {"A": -1},
+    "H.m": {"kg": 1, "m": 3, "s": -2, "A": -2},
 }
 
 CAUSALITY = {0: "input", 1: "output", 2: "parameter"}

@@ -48,6 +48,17 @@ class PlantParams:
     n_F: float = 2.0           #: force-law exponent [-] (effect force_exponent; 2: Eq. 8)
     x_n: float = 3.2e-3        #: position [m] where the exponent leaves the force unchanged
     u_dz: float = 0.0          #: amplifier dead-zone half-width [V] (effect amplifier_dead_zone)
+    k_e: float = 0.0           #: exponential force-law gain [N/A²], k_e·exp(−(x_0 − x)/z_e)·i² (other rigs; 0 = off)
+    z_e: float = 5e-3          #: decay length of the exponential force law [m]
+    R_c: float = 0.0           #: coil resistance [Ω]; > 0 selects a voltage drive (other rigs; 0 = Eq. 2)
+    L_0: float = 0.1           #: coil inductance far from the ball [H] (voltage drive)
+    L_x: float = 0.0           #: inductance the ball adds at x = x_0 [H]
+    z_L: float = 5e-3          #: decay length of the ball's inductance [m]
+    L_g: float = 0.0           #: inverse-gap inductance [H·m], L_g/(x_0 − x)
+    L_i: float = 0.0           #: current dependence of the inductance [H], L_i·atan(a_i·i − b_i)
+    a_i: float = 1.0           #: its current scale [1/A]
+    b_i: float = 0.0           #: its offset [-]
+    V_min: float = 0.0         #: lowest coil voltage of a voltage drive [V]
     solver_step: float = 1e-4  #: largest internal RK4 step [s]
 
     def replace(self, **changes: float) -> PlantParams:
@@ -85,7 +96,10 @@ SOURCES: dict[str, str] = {
     "A_d": "effect periodic_disturbance (off)", "f_d": "effect periodic_disturbance",
     "phi_d": "effect periodic_disturbance", "F_c": "effect coulomb_friction (off)",
     "n_F": "effect force_exponent (2: Eq. 8)", "x_n": "the paper's operating point (Sec. 4)",
-    "u_dz": "effect amplifier_dead_zone (off)", "solver_step": "numerics",
+    "u_dz": "effect amplifier_dead_zone (off)", "k_e": "other rigs' exponential force law (off)",
+    "z_e": "other rigs' exponential force law", "R_c": "other rigs' voltage drive (off: Eq. 2)",
+    "L_0": "voltage drive", "L_x": "voltage drive", "z_L": "voltage drive", "L_g": "voltage drive", "L_i": "voltage drive",
+    "a_i": "voltage drive", "b_i": "voltage drive", "V_min": "voltage drive", "solver_step": "numerics",
 }
 
 _SECTION3 = PlantParams()

@@ -36,7 +36,8 @@ class ReferencePlant:
         self.u = float(u0)
         self.hist_t: list[float] = [-math.inf]
         self.hist_u: list[float] = [self.u]
-        i = p.i_start if p.T_a > 0 else self._command(self.u)
+        self.volt = p.R_c > 0  # a voltage drive: the current is a state, the piece's input a voltage
+        i = p.i_start if (p.T_a > 0 or self.volt) else self._command(self.u)
         F = self._force(i, p.x_start)
         self.z = np.array([p.x_start, p.v_start, i, F])
         self.mode = 0
@@ -48,23 +49,44 @@ class ReferencePlant:
 
     # --- the equations (Eq. 1, 2/5, 8, 12, 13)
     def _command(self, u_mu: float) -> float:
+        """The current command (Eq. 2/5), or with a voltage drive the coil voltage."""
         p = self.p
         volts = p.k_DA * min(max(u_mu, -1.0), 1.0) + p.u_0
         volts = math.copysign(max(abs(volts) - p.u_dz, 0.0), volts)      # the amplifier's dead zone
+        if p.R_c > 0:
+            return max(volts, p.V_min)
         return min(max(p.k_i * volts, 0.0), p.i_max)
+
+    def _coil(self, volts: float, i: float, x: float, v: float) -> float:
+        """di/dt of a voltage drive: d(L(x, i)·i)/dt = V − R_c·i, held at 0 and i_max."""
+        p = self.p
+        dL_dx = p.L_x / p.z_L * math.exp(-(p.x_0 - x) / p.z_L)
+        L = p.L_0 + p.L_x * math.exp(-(p.x_0 - x) / p.z_L) + p.L_i * math.atan(p.a_i * i - p.b_i)
+        if p.L_g > 0:  # the inverse-gap form
+            L += p.L_g / (p.x_0 - x)
+            dL_dx += p.L_g / (p.x_0 - x) ** 2
+        dL_di = p.L_i * p.a_i / (1.0 + (p.a_i * i - p.b_i) ** 2)
+        rate = (volts - p.R_c * i - i * dL_dx * v) / (L + i * dL_di)
+        return 0.0 if (i <= 0 and rate < 0) or (i >= p.i_max and rate > 0) else rate
 
     def _force(self, i: float, x: float) -> float:
         p = self.p
         gap = p.x_0 - x
-        return p.k_c * i * i / gap**2 * ((p.x_0 - p.x_n) / gap) ** (p.n_F - 2.0)
+        law_e = p.k_e * math.exp(-gap / p.z_e) * i * i  # the exponential law of other rigs
+        if p.k_c == 0:  # the exponential law alone: the ball may touch the coil (gap 0)
+            return law_e
+        return p.k_c * i * i / gap**2 * ((p.x_0 - p.x_n) / gap) ** (p.n_F - 2.0) + law_e
 
     def _rhs(self, ic: float):
         p = self.p
 
         def f(t: float, z: np.ndarray) -> np.ndarray:
             x, v, i, F = z
-            di = (ic - i) / p.T_a if p.T_a > 0 else 0.0
-            fs = self._force(i if p.T_a > 0 else ic, x)
+            if self.volt:
+                di = self._coil(ic, i, x, 0.0 if self.mode else v)
+            else:
+                di = (ic - i) / p.T_a if p.T_a > 0 else 0.0
+            fs = self._force(i if (p.T_a > 0 or self.volt) else ic, x)
             dF = (fs - F) / p.T_F if p.T_F > 0 else 0.0
             force = F if p.T_F > 0 else fs
             if self.mode:
@@ -76,7 +98,7 @@ class ReferencePlant:
 
     def _net(self, z: np.ndarray, ic: float) -> float:
         p = self.p
-        force = z[3] if p.T_F > 0 else self._force(z[2] if p.T_a > 0 else ic, z[0])
+        force = z[3] if p.T_F > 0 else self._force(z[2] if (p.T_a > 0 or self.volt) else ic, z[0])
         return force - p.m_k * p.g
 
     def set_input(self, u: float) -> None:
@@ -107,7 +129,7 @@ class ReferencePlant:
 
     def _piece(self, t0: float, t1: float, ic: float) -> None:
         p = self.p
-        if p.T_a <= 0:
+        if p.T_a <= 0 and not self.volt:
             self.z[2] = ic
             if p.T_F <= 0:
                 self.z[3] = self._force(ic, self.z[0])
@@ -143,14 +165,14 @@ class ReferencePlant:
                     self.mode = 0
             else:
                 t = t1
-        if p.T_a <= 0:
+        if p.T_a <= 0 and not self.volt:
             self.z[2] = ic
 
     def outputs(self) -> dict[str, float]:
         """y [MU] (Eq. 12, 13), x [m], v [m/s], i [A], F [N] now."""
         p = self.p
         x, v, i, F = self.z
-        if p.T_a <= 0:
+        if p.T_a <= 0 and not self.volt:
             i = self._command(self._delayed(self.time))
         force = F if p.T_F > 0 else self._force(i, x)
         yv = p.k_x * x + p.y_0 + p.k_x2 * x * (x - p.x_cal) + p.A_d * math.sin(2 * math.pi * p.f_d * self.time + p.phi_d)

@@ -25,7 +25,7 @@
 #define SHADOW_ID NSLOT
 #define MAXH 4       /* FMU states an instance holds at once */
 #define MAXB 8       /* serialized buffers kept per sequence */
-#define MAXV 40      /* value references per Get/SetReal call */
+#define MAXV 64      /* value references per Get/SetReal call (more than the parameters) */
 #define MAX_PRINTED 40
 
 /* ---------------------------------------------------------------- random numbers (splitmix64) */
@@ -1169,7 +1169,7 @@ static void gen_buffer(Op *op, int slot) {
  * between the stops, moving or not, with or without delay, force lag, amplifier lag, sensor pickup and
  * deviation, fine or coarse solver steps. This is what takes the sequences deep into the plant. */
 static void gen_scenario(Op *op) {
-    struct { MaglevVR vr; double v; } s[16];
+    struct { MaglevVR vr; double v; } s[32];
     int n = 0;
     double x_max = maglev_variables[VR_x_max].start, i_max = maglev_variables[VR_i_max].start;
     s[n].vr = VR_x_start, s[n++].v = rchance(0.3) ? (rchance(0.5) ? 0.0 : x_max) : runit() * x_max;
@@ -1185,6 +1185,23 @@ static void gen_scenario(Op *op) {
     if (rchance(0.3)) s[n].vr = VR_f_d, s[n++].v = rloguni(1.0, 1e5);
     if (rchance(0.3)) s[n].vr = VR_k_x2, s[n++].v = rsign() * rloguni(1.0, 1e5);
     if (rchance(0.3)) s[n].vr = VR_k_FV, s[n++].v = rloguni(1e-4, 10.0);
+    if (rchance(0.25)) { /* the exponential force law (Inteco's), alone or beside Eq. 8 */
+        s[n].vr = VR_k_e, s[n++].v = rloguni(1e-6, 1e-2);
+        s[n].vr = VR_z_e, s[n++].v = rloguni(1e-4, 1e-1);
+        if (rchance(0.5)) s[n].vr = VR_k_c, s[n++].v = 0.0;
+    }
+    if (rchance(0.25)) { /* a voltage drive: the current becomes a state */
+        double L_0 = rloguni(1e-3, 1.0);
+        s[n].vr = VR_R_c, s[n++].v = rloguni(0.1, 100.0);
+        s[n].vr = VR_L_0, s[n++].v = L_0;
+        s[n].vr = VR_L_x, s[n++].v = rchance(0.3) ? 0.0 : rloguni(1e-4, 1.0);
+        s[n].vr = VR_z_L, s[n++].v = rloguni(1e-4, 1e-1);
+        s[n].vr = VR_L_i, s[n++].v = rchance(0.5) ? 0.0 : runit() * 0.6 * L_0;
+        s[n].vr = VR_L_g, s[n++].v = rchance(0.7) ? 0.0 : rloguni(1e-6, 1e-2);
+        s[n].vr = VR_a_i, s[n++].v = rloguni(0.1, 10.0);
+        s[n].vr = VR_b_i, s[n++].v = 4 * runit() - 2;
+        s[n].vr = VR_V_min, s[n++].v = rchance(0.5) ? 0.0 : 2 * runit() - 1;
+    }
     op->n = (size_t)n;
     for (int k = 0; k < n; k++) {
         op->vr[k] = (fmi2ValueReference)s[k].vr;

@@ -597,6 +597,71 @@ static void test_new_effects(void) {
     fmi2FreeInstance(c);
 }
 
+/* The physics rig files need (docs/model.md, "Other rigs"): Inteco's exponential force law and a
+ * voltage-driven coil with L(x, i), checked against their closed forms on the plant API. */
+static void test_rig_physics(void) {
+    char msg[MAGLEV_MSG_LEN];
+    MaglevPlant m;
+    maglev_defaults(&m);
+    /* exponential law alone: F = k_e*exp(-(x_0 - x)/z_e)*i^2, its partials, the current that holds */
+    maglev_set_param(&m, VR_k_c, 0.0);
+    maglev_set_param(&m, VR_k_e, 3.0);
+    maglev_set_param(&m, VR_z_e, 5.8e-3);
+    maglev_set_param(&m, VR_m_k, 0.06);
+    CHECK(maglev_check_params(&m, msg, sizeof msg) == 0, "exponential law refused: %s", msg);
+    double x = 2e-3, i = 1.1, dFdx, dFdi, gap = 8.3e-3 - x;
+    double F = maglev_force(&m, i, x, &dFdx, &dFdi), want = 3.0 * exp(-gap / 5.8e-3) * i * i;
+    CHECK(fabs(F - want) <= 1e-14 * want, "exponential force %.17g, want %.17g", F, want);
+    CHECK(fabs(dFdx - want / 5.8e-3) <= 1e-12 * dFdx, "dF/dx %.17g, want %.17g", dFdx, want / 5.8e-3);
+    CHECK(fabs(dFdi - 2 * want / i) <= 1e-12 * dFdi, "dF/di %.17g, want %.17g", dFdi, 2 * want / i);
+    double ieq = maglev_equilibrium_current(&m, x);
+    CHECK(fabs(maglev_force(&m, ieq, x, NULL, NULL) - 0.06 * 9.81) <= 1e-12, "equilibrium current %g does not hold", ieq);
+    maglev_set_param(&m, VR_k_e, 0.0);
+    CHECK(maglev_check_params(&m, msg, sizeof msg) != 0 && strstr(msg, "variable k_c"), "no force law accepted: %s", msg);
+
+    /* a voltage drive with the ball held on the lower stop: L di/dt = V - R i, so
+     * i(t) = V/R*(1 - exp(-t*R/L)) with L = L_0 + L_x*exp(-(x_0 - x_min)/z_L) */
+    maglev_defaults(&m);
+    double R = 4.17, L0 = 0.065, Lx = 0.04, zL = 6.3e-3, V = 2.0;
+    maglev_set_param(&m, VR_R_c, R);
+    maglev_set_param(&m, VR_L_0, L0);
+    maglev_set_param(&m, VR_L_x, Lx);
+    maglev_set_param(&m, VR_z_L, zL);
+    maglev_set_param(&m, VR_k_DA, 10.0);
+    maglev_set_param(&m, VR_k_c, 1e-9); /* too weak to lift the ball: it stays on the stop */
+    CHECK(maglev_initialize(&m, 0.0, V / 10.0, &maglev_std_allocator, msg, sizeof msg) == 0, "init: %s", msg);
+    double L = L0 + Lx * exp(-8.3e-3 / zL), worst = 0;
+    for (int k = 1; k <= 100; k++) {
+        CHECK(maglev_step(&m, 1e-3, &maglev_std_allocator, msg, sizeof msg) == 0, "step: %s", msg);
+        double exact = V / R * (1 - exp(-k * 1e-3 * R / L));
+        if (fabs(maglev_get(&m, VR_i) - exact) > worst) worst = fabs(maglev_get(&m, VR_i) - exact);
+    }
+    CHECK(worst < 1e-9, "voltage-driven current off its closed form by %g A", worst);
+    CHECK(m.x == 0.0 && m.contact == CONTACT_LOWER, "the ball left the stop: x = %g", m.x);
+    /* the steady input for a current: V = R*i */
+    double u = maglev_input_for_current(&m, 0.3);
+    CHECK(fabs(u * 10.0 - R * 0.3) < 1e-12, "input for 0.3 A is %g MU, want %g", u, R * 0.3 / 10.0);
+    maglev_release(&m, &maglev_std_allocator);
+
+    /* the floor V_min and a current-dependent L: with v = 0, (L + i dL/di) di/dt = V - R i. The
+     * steady state is V/R whatever L(i) is; a floor above the commanded voltage wins. */
+    maglev_defaults(&m);
+    maglev_set_param(&m, VR_R_c, R);
+    maglev_set_param(&m, VR_L_0, L0);
+    maglev_set_param(&m, VR_L_i, 0.03);
+    maglev_set_param(&m, VR_a_i, 5.3);
+    maglev_set_param(&m, VR_b_i, 1.04);
+    maglev_set_param(&m, VR_V_min, 0.5);
+    maglev_set_param(&m, VR_k_DA, 10.0);
+    maglev_set_param(&m, VR_k_c, 1e-9);
+    CHECK(maglev_initialize(&m, 0.0, 0.01, &maglev_std_allocator, msg, sizeof msg) == 0, "init: %s", msg);
+    CHECK(maglev_step(&m, 2.0, &maglev_std_allocator, msg, sizeof msg) == 0, "step: %s", msg);
+    CHECK(fabs(maglev_get(&m, VR_i) - 0.5 / R) < 1e-9, "floor V_min: i = %.12g, want %.12g", maglev_get(&m, VR_i), 0.5 / R);
+    maglev_release(&m, &maglev_std_allocator);
+    maglev_set_param(&m, VR_L_i, 0.05); /* L_0 - L_i*pi/2 < 0 */
+    CHECK(maglev_check_params(&m, msg, sizeof msg) != 0 && strstr(msg, "variable L_i"), "negative L accepted: %s", msg);
+}
+
 static void test_deserialize_checks_values(void) {
     double u_eq;
     fmi2Component c = make_levitating("values", &u_eq);
@@ -709,6 +774,7 @@ int main(void) {
     test_free_instance_frees_states();
     test_deserialize_checks_values();
     test_new_effects();
+    test_rig_physics();
     test_instantiate_failure_logged();
     test_refused_step_keeps_time();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
