@@ -241,7 +241,7 @@ static void put_state(MaglevPlant *m, const double s[NS]) {
     double lo = maglev_param(m, VR_x_min), hi = maglev_param(m, VR_x_max);
     m->x = s[0] < lo ? lo : (s[0] > hi ? hi : s[0]);
     m->v = s[1];
-    if (maglev_param(m, VR_T_a) > 0) {
+    if (maglev_param(m, VR_T_a) > 0 || maglev_param(m, VR_R_c) > 0) {
         double imax = maglev_param(m, VR_i_max);
         m->i = s[2] < 0 ? 0 : (s[2] > imax ? imax : s[2]);
     }
@@ -283,18 +283,30 @@ static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
     return 0;
 }
 
-int maglev_replay_predict(const double *params, const MaglevPid *pid, const MaglevFilter *f, const double *w,
-                          const double *y, const double *u, size_t n, double u_hold, double *y_pred,
-                          double *u_pred, double *innov, double *innov_var, char *msg, size_t len) {
+/* The filter of both entry points: with a PID (closed-loop predictions) or without (pid NULL: the
+ * predictions are driven by the measured input), and with an optional measured current. */
+static int predict(const double *params, const MaglevPid *pid, double ts, const MaglevFilter *f, const double *w,
+                   const double *y, const double *u, const double *i_meas, double r_current, size_t n,
+                   double u_hold, double *y_pred, double *u_pred, double *i_pred, double *innov,
+                   double *innov_var, char *msg, size_t len) {
     MaglevPlant m;
-    if (pid_check(pid, u_hold, msg, len) || filter_check(f, msg, len)) return -1;
+    if ((pid && pid_check(pid, u_hold, msg, len)) || filter_check(f, msg, len)) return -1;
+    if (!pid && (!(ts > 0) || !isfinite(ts) || !isfinite(u_hold))) {
+        snprintf(msg, len, "sample time %g s must be > 0 and the initial input finite", ts);
+        return -1;
+    }
+    if (i_meas && (!(r_current > 0) || !isfinite(r_current))) {
+        snprintf(msg, len, "the current's noise RMS r_current must be > 0 A, got %g", r_current);
+        return -1;
+    }
     for (size_t k = 0; k < n; k++) {
-        if (!isfinite(w[k]) || !isfinite(y[k]) || !isfinite(u[k])) {
-            snprintf(msg, len, "w[%zu], y[%zu] or u[%zu] is not finite", k, k, k);
+        if ((pid && !isfinite(w[k])) || !isfinite(y[k]) || !isfinite(u[k]) || (i_meas && !isfinite(i_meas[k]))) {
+            snprintf(msg, len, "sample %zu: a measured signal (w, y, u or the current) is not finite", k);
             return -1;
         }
         if (y_pred) y_pred[k] = NAN;
         if (u_pred) u_pred[k] = NAN;
+        if (i_pred) i_pred[k] = NAN;
         if (innov) innov[k] = NAN;
         if (innov_var) innov_var[k] = NAN;
     }
@@ -302,9 +314,10 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
         maglev_release(&m, &maglev_std_allocator);
         return -1;
     }
-    const double ts = pid->ts, mk = maglev_param(&m, VR_m_k), mg = mk * maglev_param(&m, VR_g);
+    const double mk = maglev_param(&m, VR_m_k), mg = mk * maglev_param(&m, VR_g);
     const double a = exp(-6.283185307179586 * f->f_force * ts), r2 = f->r_sensor * f->r_sensor;
-    const int active[NS] = {1, 1, maglev_param(&m, VR_T_a) > 0, maglev_param(&m, VR_T_F) > 0, 1};
+    const int current_state = maglev_param(&m, VR_T_a) > 0 || maglev_param(&m, VR_R_c) > 0;
+    const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1};
     const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg};
     /* process noise besides d's own: tiny, to keep the lags' covariance well conditioned */
     const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0};
@@ -342,8 +355,24 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
             for (int i = 0; i < NS; i++)
                 for (int j = 0; j < NS; j++) P[i][j] += K[i] * r2 * K[j];
         }
+        /* measurement update with the measured current (a state of its own only with a lag or a
+         * voltage drive; otherwise it is a function of the input and carries nothing new) */
+        if (i_meas && active[2]) {
+            double rc2 = r_current * r_current, S = P[2][2] + rc2, e = i_meas[k] - m.i, K[NS], s[NS];
+            for (int i = 0; i < NS; i++) K[i] = P[i][2] / S;
+            get_state(&m, d, s);
+            for (int i = 0; i < NS; i++) s[i] += K[i] * e;
+            put_state(&m, s);
+            d = s[4];
+            double IKH[NS][NS];
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) IKH[i][j] = (i == j) - (j == 2 ? K[i] : 0.0);
+            sandwich(IKH, P);
+            for (int i = 0; i < NS; i++)
+                for (int j = 0; j < NS; j++) P[i][j] += K[i] * rc2 * K[j];
+        }
         /* the controller, on the measured reading: its state for the predictions */
-        (void)pid_step(pid, &ps, w[k], y[k]);
+        if (pid) (void)pid_step(pid, &ps, w[k], y[k]);
         /* prediction from here */
         if (f->horizon > 0 && k % (size_t)f->stride == 0 && k + (size_t)f->horizon < n) {
             MaglevPlant cur;
@@ -362,12 +391,14 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
                 dd *= a;
                 cur.time = (double)(k + (size_t)j) * ts;
                 yj = maglev_get(&cur, VR_y);
-                uin = pid_step(pid, &pp, w[k + (size_t)j], yj);
+                uin = pid ? pid_step(pid, &pp, w[k + (size_t)j], yj) : u[k + (size_t)j];
             }
+            double ij = maglev_get(&cur, VR_i);
             maglev_release(&cur, &maglev_std_allocator);
             if (rc) break;
             if (y_pred) y_pred[k + (size_t)f->horizon] = yj;
-            if (u_pred) u_pred[k + (size_t)f->horizon] = uin;
+            if (u_pred && pid) u_pred[k + (size_t)f->horizon] = uin;
+            if (i_pred) i_pred[k + (size_t)f->horizon] = ij;
         }
         /* time update: the nominal step, and its Jacobian by finite differences; the Jacobian
          * changes slowly along a levitating record, so it is refreshed every JAC_EVERY samples
@@ -430,4 +461,23 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
     }
     maglev_release(&m, &maglev_std_allocator);
     return rc;
+}
+
+int maglev_replay_predict(const double *params, const MaglevPid *pid, const MaglevFilter *f, const double *w,
+                          const double *y, const double *u, size_t n, double u_hold, double *y_pred,
+                          double *u_pred, double *innov, double *innov_var, char *msg, size_t len) {
+    if (!pid) {
+        snprintf(msg, len, "no controller given (maglev_replay_predict_measured replays without one)");
+        return -1;
+    }
+    return predict(params, pid, pid->ts, f, w, y, u, NULL, 0.0, n, u_hold, y_pred, u_pred, NULL, innov, innov_var,
+                   msg, len);
+}
+
+int maglev_replay_predict_measured(const double *params, const MaglevFilter *f, double ts, const double *y,
+                                   const double *u, const double *i_meas, double r_current, size_t n,
+                                   double *y_pred, double *i_pred, double *innov, double *innov_var, char *msg,
+                                   size_t len) {
+    return predict(params, NULL, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, y_pred, NULL, i_pred,
+                   innov, innov_var, msg, len);
 }

@@ -53,6 +53,17 @@ int maglev_replay_predict(const double *params, const MaglevPid *pid, const Magl
                           double *y_pred, double *u_pred, double *innov, double *innov_var,
                           char *msg, size_t msglen);
 
+/* The same filter for a record whose controller is unknown (MPC, or anything the user cannot state):
+ * the predictions are driven by the measured input u (the actuator signal as the plant's D/A input
+ * [MU]), never by a controller and never by a free run of the unstable plant. With i_meas (may be
+ * NULL) the measured coil current [A], white noise of RMS r_current, corrects the state too (when
+ * the current is a state: T_a > 0 or a voltage drive). i_pred[k]: the current predicted at
+ * k - horizon. ts: the sample time [s]. Returns 0, or -1 with a message. */
+int maglev_replay_predict_measured(const double *params, const MaglevFilter *filter, double ts, const double *y,
+                                   const double *u, const double *i_meas, double r_current, size_t n,
+                                   double *y_pred, double *i_pred, double *innov, double *innov_var, char *msg,
+                                   size_t msglen);
+
 /* The plant driven by a given input sequence; y[k] is read at t_k before u_in[k] is applied;
  * u_in[0] is also the input before t = 0. */
 int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, double ts, double *y,

@@ -265,10 +265,64 @@ def _load(path: str, implausible: bool = False):
     return rec
 
 
+def _is_measured(path: str) -> bool:
+    """A real rig's published record (an Inteco .mat, the levitador text) rather than the record format."""
+    p = Path(path)
+    if p.suffix.lower() == ".mat":
+        return True
+    try:
+        with p.open("rb") as fh:
+            head = fh.read(4096).decode("utf-8", "replace")
+    except OSError:
+        return False
+    first = next((ln for ln in head.splitlines() if ln.strip()), "")
+    return not first.lstrip().startswith("#") and len(first.split()) == 6 and "," not in first
+
+
+def _print_rig_result(res: dict) -> None:
+    print(f"verdict: {res['verdict']}")
+    for r in res["reasons"]:
+        print(f"  {r}")
+    for e in res["records"]:
+        for s in e["segments"]:
+            f = s["after"]
+            cur = f.get("current") or {}
+            pos = "  ".join(f"{h}: skill {v['skill_vs_stays_put']:+.2f}" for h, v in f["position"].items())
+            print(f"{s['label']}: current from actuator {cur.get('from_actuator', float('nan')):.1f} %  {pos}")
+    for v in res["validation"]:
+        f = v["after"]
+        cur = f.get("current") or {}
+        print(f"validation {v['label']}: current {cur.get('from_actuator', float('nan')):.1f} %  20 ms skill "
+              f"{f['position']['20 ms']['skill_vs_stays_put']:+.2f}")
+    print("wrote " + ", ".join(res["written"]))
+
+
+def cmd_calibrate(a: argparse.Namespace) -> dict:
+    from .rigfit import run
+    from .rigs import load_rig
+
+    rig = load_rig(a.rig)
+    res = run(rig, a.records, a.out, validate=a.validate or (), resample=a.resample, progress=_progress)
+    _print_rig_result(res)
+    return res
+
+
 def cmd_diagnose(a: argparse.Namespace) -> dict:
     from .diagnosis import diagnose
     from .fmu import ensure_fmu
     from .report import write_report
+
+    if a.rig not in (None, "ce152") or _is_measured(a.record):
+        from .rigfit import run
+        from .rigs import load_rig
+
+        if a.rig is None:
+            raise CliError(f"{a.record} is a real rig's record: name its rig with --rig (inteco-mls2em, levitador, "
+                           "or a rig file)")
+        res = run(load_rig(a.rig), [a.record], a.out, resample=a.resample, per_record=False, progress=_progress,
+                  json_name="diagnosis.json")
+        _print_rig_result(res)
+        return res
 
     rec = _load(a.record, a.accept_implausible)          # fails before anything is written
     fmu = ensure_fmu(a.fmu)
@@ -480,7 +534,21 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--accept-implausible", action="store_true",
                    help="diagnose a record that looks physically implausible (constant or saturated signals, "
                         "the ball on a stop for most of it) with warnings in the report, instead of refusing it")
+    s.add_argument("--rig", default=None, help="the rig of a real record: a shipped rig (ce152, inteco-mls2em, "
+                   "levitador) or a rig file (docs/rigs.md); an Inteco .mat or levitador text needs it")
+    s.add_argument("--resample", action="store_true",
+                   help="interpolate a real record with non-uniform time onto a uniform grid instead of refusing it")
     s.set_defaults(func=cmd_diagnose)
+
+    s = sub.add_parser("calibrate", help="one parameter set for a rig on several real records: per-record fit, "
+                       "parameter spread, validation on records not used")
+    s.add_argument("records", nargs="+", help="real records (Inteco .mat, levitador text)")
+    s.add_argument("--rig", required=True, help="shipped rig name or rig file (docs/rigs.md)")
+    s.add_argument("--out", required=True, help="output folder")
+    s.add_argument("--validate", action="append", metavar="FILE", help="a record to judge the calibration on, "
+                   "not used to fit it (repeatable)")
+    s.add_argument("--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid")
+    s.set_defaults(func=cmd_calibrate)
 
     s = sub.add_parser("identify", help="the paper's identification methods on a record (Sec. 3.4)")
     s.add_argument("record", help="record file (docs/record-format.md)")

@@ -164,6 +164,35 @@ def predict(params: PlantParams | Mapping[str, float] | None, pid: PID, w: np.nd
     return out
 
 
+def predict_measured(params: PlantParams | Mapping[str, float] | None, y: np.ndarray, u: np.ndarray, *, ts: float,
+                     q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int = 1,
+                     current: np.ndarray | None = None, r_current: float = 0.0) -> dict[str, np.ndarray]:
+    """The prediction-error replay of a record whose controller is unknown, in one C call
+    (``maglev_replay_predict_measured``): the filter follows the measured reading ``y`` [MU] (and
+    the measured coil ``current`` [A], white noise of RMS ``r_current``, when given) and predicts
+    ``horizon`` samples ahead driven by the measured input ``u`` [MU]. Returns ``y_pred`` [MU],
+    ``i_pred`` [A] (NaN where no prediction ends), ``innov`` [MU] and ``innov_var`` [MU²]."""
+    m = _lib()
+    pv = _param_vector(_as_mapping(params))
+    arrays = [np.ascontiguousarray(a, dtype=float) for a in (y, u)]
+    n = len(arrays[0])
+    cur = None if current is None else np.ascontiguousarray(current, dtype=float)
+    if len(arrays[1]) != n or (cur is not None and len(cur) != n):
+        raise ValueError("y, u and the current must have the same length")
+    out = {k: np.empty(n) for k in ("y_pred", "i_pred", "innov", "innov_var")}
+    filt = m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
+                                        "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride)})
+    msg = m.ffi.new("char[256]")
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    rc = m.lib.maglev_replay_predict_measured(ptr(pv), filt, float(ts), *(ptr(a) for a in arrays),
+                                              m.ffi.NULL if cur is None else ptr(cur), float(r_current), n,
+                                              *(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var")),
+                                              msg, 256)
+    if rc != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return out
+
+
 def pid_only(pid: PID, w: np.ndarray, y: np.ndarray, u_hold: float) -> np.ndarray:
     """The C PID alone over given ``w`` and ``y`` [MU], settled at ``u_hold`` [MU]: its outputs [MU]."""
     m = _lib()

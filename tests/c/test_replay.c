@@ -53,6 +53,34 @@ int main(void) {
         if (!isnan(yp[k])) wrong = fmax(wrong, fabs(yp[k] - y[k]));
     CHECK(wrong > 100 * worst && wrong > 1e-4, "wrong model: %g, exact: %g", wrong, worst);
 
+    /* the unknown-controller path: the same record replayed without the PID, the predictions driven
+     * by the measured input, the filter also fed the measured current; exact model, exact predictions */
+    static double cur[N], ip[N];
+    CHECK(maglev_replay_closed_loop(p, &pid, w, N, pt.u, NULL, NULL, NULL, NULL, cur, msg, sizeof msg) == 0, "%s", msg);
+    for (int with_i = 0; with_i < 2; with_i++) {
+        CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, with_i ? cur : NULL, 1e-3, N, yp, ip, e, s, msg,
+                                             sizeof msg) == 0, "%s", msg);
+        double wy = 0.0, wi = 0.0;
+        made = 0;
+        for (int k = 0; k < N; k++) {
+            if (isnan(yp[k])) continue;
+            made++;
+            wy = fmax(wy, fabs(yp[k] - y[k]));
+            wi = fmax(wi, fabs(ip[k] - cur[k]));
+        }
+        CHECK(made == (N - 20 + 2) / 3, "%d predictions", made);
+        CHECK(wy < 1e-5 && wi < 1e-5, "measured-input predictions (current %s): y off by %g MU, i by %g A",
+              with_i ? "measured" : "not measured", wy, wi);
+    }
+    CHECK(maglev_replay_predict_measured(q, &f, 1e-3, y, u, cur, 1e-3, N, yp, ip, NULL, NULL, msg, sizeof msg) == 0,
+          "%s", msg);
+    wrong = 0.0;
+    for (int k = 0; k < N; k++)
+        if (!isnan(yp[k])) wrong = fmax(wrong, fabs(yp[k] - y[k]));
+    CHECK(wrong > 1e-4, "wrong model, measured input: %g", wrong);
+    CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, cur, 0.0, N, yp, ip, NULL, NULL, msg, sizeof msg) == -1 &&
+              strstr(msg, "r_current"), "%s", msg);
+
     /* refusals: one message, nothing computed */
     MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1}, {2.5e-4, NAN, 2.5e-4, 20, 1}, {2.5e-4, 8.0, -1.0, 20, 1},
                           {2.5e-4, 8.0, 2.5e-4, -1, 1}, {2.5e-4, 8.0, 2.5e-4, 20, 0}};
@@ -63,7 +91,7 @@ int main(void) {
     }
     y[700] = NAN;
     CHECK(maglev_replay_predict(p, &pid, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
-              strstr(msg, "y[700]"), "%s", msg);
+              strstr(msg, "sample 700"), "%s", msg);
     y[700] = 0.4;
     params_with(p, VR_k_c, -1.0);
     CHECK(maglev_replay_predict(p, &pid, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&

@@ -1,0 +1,473 @@
+"""Measured records of real rigs with any controller: prediction-error replay, figures, calibration.
+
+A real rig's controller is often unknown (an MPC, a filter-based state feedback): the model is then
+never run free (the plant is open-loop unstable) but replayed by prediction. An extended Kalman
+filter on the C plant (``maglev_replay_predict_measured``) follows the measured gap and coil current,
+and predicts them ``h`` ahead driven by the *measured* actuator signal (PWM duty or voltage). The
+figures (:func:`figures`) are NRMSE fits as MATLAB's ``compare`` defines them:
+
+- the coil current: from the actuator signal alone (the filter never sees the measured current;
+  "free run" of the coil model along the tracked position), and ``h`` ahead with it;
+- the position ``h`` ahead (5, 20, 50 ms), beside two naive predictors: "stays put"
+  (ŷ[k+h] = y[k]) and "constant velocity" (the slope of the last 10 ms carried on). The skill
+  ``1 − ‖y − ŷ_model‖ / ‖y − ŷ_stays-put‖`` says how much of the naive predictor's error the model
+  removes (> 0: the model beats it).
+
+:func:`calibrate` fits the force law, the coil resistance and the PWM-to-voltage map to one or
+several records at once by least squares on the 20 ms prediction errors of gap and current.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import fast
+from .measured import Measured, Segment, levitation_segments
+from .metrics import nrmse_fit
+from .params import PlantParams
+from .rigs import Rig
+
+#: Prediction horizons of the position figures [s].
+HORIZONS_S = (0.005, 0.020, 0.050)
+#: Samples at a segment's start the figures skip while the filter settles [s].
+SETTLE_S = 0.5
+#: Parameters :func:`calibrate` fits, by drive type (multiplicative factors on the rig's values).
+CALIBRATED = {"voltage": ("k_e", "z_e", "R_c", "k_DA", "u_0"), "current": ("k_c", "x_0", "k_i", "T_a")}
+
+
+@dataclass
+class RigRecord:
+    """One levitation segment of a measured record, in the plant's signals."""
+
+    label: str
+    ts: float
+    y: np.ndarray          #: the plant's reading [MU] of the measured position
+    u: np.ndarray          #: the actuator signal as the plant's input [MU]
+    current: np.ndarray | None  #: measured coil current [A]
+    position: np.ndarray   #: the record's position [m], its own convention
+    segment: Segment
+
+
+def prepare(rig: Rig, m: Measured, *, min_duration: float = 1.0) -> list[RigRecord]:
+    """The levitation segments of ``m`` (:func:`maglev_cosim.measured.levitation_segments`, the
+    rest being the rig's lower stop), each as plant signals."""
+    if m.drive is None:
+        raise ValueError(f"{m.path}: the record has no actuator signal: a replay needs it")
+    if abs(m.ts - rig.ts) > 1e-3 * rig.ts:
+        # any sample rate works, but a rig file states one: a mismatch is a wrong rig or file
+        raise ValueError(f"{m.path}: sample time {m.ts:g} s, but rig {rig.name} samples at {rig.ts:g} s")
+    rest = rig.stops[1] if rig.convention == "gap" else rig.stops[0]
+    segs, _ = levitation_segments(m, rest, min_duration=min_duration)
+    out = []
+    for s in segs:
+        part = m.slice(s.start, s.stop)
+        out.append(RigRecord(label=f"{m.label}[{part.t[0]:.2f}-{part.t[-1]:.2f} s]", ts=m.ts,
+                             y=np.asarray(rig.reading(part.position)), u=np.asarray(rig.input_to_mu(part.drive)),
+                             current=part.current, position=part.position, segment=s))
+    return out
+
+
+def _start(rig: Rig, r: RigRecord, params: PlantParams) -> PlantParams:
+    p = params
+    x0 = float(np.clip(rig.to_x(r.position[0]), p.x_min, p.x_max))
+    i0 = float(np.clip(r.current[0], 0.0, p.i_max)) if r.current is not None else p.i_start
+    return p.replace(x_start=x0, v_start=0.0, i_start=i0)
+
+
+def noise_defaults(rig: Rig, params: PlantParams) -> dict[str, float]:
+    """The filter's disturbance model for a real rig: a random force of 1 % of the weight with a
+    20 Hz corner, the position's quantisation (or 10 µm) as sensor noise, 10 mA on the current."""
+    res = rig.resolution or 1e-5
+    return {"q_force": 0.01 * params.m_k * params.g, "f_force": 20.0,
+            "r_sensor": res / rig.position_scale if rig.sensor == "position" else 1e-3, "r_current": 0.01}
+
+
+def predict(rig: Rig, r: RigRecord, params: PlantParams, horizon_s: float, *, use_current: bool = True,
+            stride: int = 1, noise: dict[str, float] | None = None) -> dict[str, np.ndarray]:
+    """``y_pred`` [MU] and ``i_pred`` [A] ``horizon_s`` ahead (NaN where no prediction ends)."""
+    nz = noise or noise_defaults(rig, params)
+    h = max(1, int(round(horizon_s / r.ts)))
+    return fast.predict_measured(_start(rig, r, params), r.y, r.u, ts=r.ts, q_force=nz["q_force"],
+                                 f_force=nz["f_force"], r_sensor=nz["r_sensor"], horizon=h, stride=stride,
+                                 current=r.current if use_current else None, r_current=nz["r_current"])
+
+
+def _valid(n: int, h: int, ts: float) -> np.ndarray:
+    k = np.arange(n)
+    return k >= h + int(round(SETTLE_S / ts))
+
+
+def figures(rig: Rig, r: RigRecord, params: PlantParams) -> dict:
+    """The fit figures of one segment (module docstring); JSON-ready."""
+    out: dict = {"label": r.label, "samples": len(r.y), "duration_s": len(r.y) * r.ts, "position": {}}
+    if r.current is not None:
+        o = predict(rig, r, params, r.ts, use_current=False)
+        ok = _valid(len(r.y), 1, r.ts) & np.isfinite(o["i_pred"])
+        cur = {"from_actuator": nrmse_fit(r.current[ok], o["i_pred"][ok])}
+    else:
+        cur = None
+    for hs in HORIZONS_S:
+        h = max(1, int(round(hs / r.ts)))
+        o = predict(rig, r, params, hs)
+        ok = _valid(len(r.y), h + 10, r.ts) & np.isfinite(o["y_pred"])
+        y = r.y
+        stay = np.full_like(y, np.nan)
+        stay[h:] = y[:-h]
+        cv = np.full_like(y, np.nan)
+        m = max(1, int(round(0.01 / r.ts)))
+        cv[h + m:] = y[m:-h] + h * (y[m:-h] - y[:-h - m]) / m
+        e_model = np.linalg.norm(y[ok] - o["y_pred"][ok])
+        e_stay = np.linalg.norm(y[ok] - stay[ok])
+        out["position"][f"{hs * 1e3:g} ms"] = {
+            "model": nrmse_fit(y[ok], o["y_pred"][ok]), "stays_put": nrmse_fit(y[ok], stay[ok]),
+            "constant_velocity": nrmse_fit(y[ok], cv[ok]),
+            "skill_vs_stays_put": float(1 - e_model / e_stay) if e_stay > 0 else float("nan")}
+        if cur is not None:
+            cur[f"{hs * 1e3:g} ms"] = nrmse_fit(r.current[ok], o["i_pred"][ok])
+    out["current"] = cur
+    return out
+
+
+def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None = None, *,
+              names: Sequence[str] | None = None, horizon_s: float = 0.020, stride: int = 10,
+              progress=None) -> tuple[PlantParams, dict]:
+    """One parameter set for several segments: least squares (scipy, trust-region reflective) on
+    the ``horizon_s`` prediction errors of the reading and the current, each scaled by its noise
+    level, over factors on the rig's values of ``names`` (default :data:`CALIBRATED`), bounded to
+    [0.5, 2] (offsets: ±1 V).
+
+    Returns the calibrated parameters and a summary (factors, cost before and after, evaluations)."""
+    from scipy.optimize import least_squares
+
+    p0 = params or rig.params
+    names = tuple(names or CALIBRATED[rig.drive])
+    nz = noise_defaults(rig, p0)
+    base = np.array([getattr(p0, n) for n in names])
+    additive = np.array([n in ("u_0", "x_0") for n in names])
+    lo = np.where(additive, -1.0 if True else 0, 0.5)
+    hi = np.where(additive, 1.0, 2.0)
+    z0 = np.where(additive, 0.0, 1.0)
+    evals = [0]
+
+    def make(z: np.ndarray) -> PlantParams:
+        vals = np.where(additive, base + z * np.where([n == "x_0" for n in names], 1e-3, 1.0), base * z)
+        return p0.replace(**dict(zip(names, vals)))
+
+    def resid(z: np.ndarray) -> np.ndarray:
+        evals[0] += 1
+        try:
+            p = make(z)
+            p.validate()
+        except ValueError:
+            return np.full(sum(len(r.y) // stride * 2 for r in records), 1e3)
+        parts = []
+        h = max(1, int(round(horizon_s / records[0].ts)))
+        for r in records:
+            o = predict(rig, r, p, horizon_s, stride=stride, noise=nz)
+            ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"])
+            ey = np.zeros(len(r.y) // stride + 1)
+            sel = np.flatnonzero(ok)[: len(ey)]
+            scale_y = max(float(np.std(r.y[ok])), 1e-9)
+            e = (r.y[sel] - o["y_pred"][sel]) / scale_y
+            ey[: len(e)] = np.nan_to_num(e, nan=10.0, posinf=10.0, neginf=-10.0)
+            parts.append(ey / np.sqrt(len(records)))
+            if r.current is not None:
+                scale_i = max(float(np.std(r.current[ok])), 1e-9)
+                ei = np.zeros_like(ey)
+                e = (r.current[sel] - o["i_pred"][sel]) / scale_i
+                ei[: len(e)] = np.nan_to_num(e, nan=10.0, posinf=10.0, neginf=-10.0)
+                parts.append(ei / np.sqrt(len(records)))
+        if progress:
+            progress(evals[0])
+        return np.concatenate(parts)
+
+    r0 = resid(z0)
+    sol = least_squares(resid, z0, bounds=(lo, hi), x_scale=np.where(additive, 0.1, 0.1), diff_step=1e-3,
+                        max_nfev=40)
+    p = make(sol.x)
+    on_bound = [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]
+    return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
+               "rig_values": {n: float(v) for n, v in zip(names, base)},
+               "cost_before": float(0.5 * r0 @ r0), "cost_after": float(sol.cost), "evaluations": evals[0],
+               "on_bounds": on_bound}
+
+
+# ----------------------------------------------------------------------------- frequency response
+
+def current_to_position(rig: Rig, r: RigRecord, params: PlantParams, *, seconds_per_segment: float = 2.0) -> dict:
+    """The measured frequency response from coil current to position (Welch cross-spectra,
+    ``G = P_iz / P_ii``, with the coherence) beside the model's, linearised at the segment's mean
+    position: ``m·s²·x = dF/dx·x + dF/di·i`` (Eq. 16, 17), in the record's convention. In closed loop
+    the estimate is biased where the coherence is low; the JSON gives both on 1–20 Hz."""
+    from scipy import signal
+
+    from .formulas import point
+
+    if r.current is None:
+        return {}
+    fs = 1.0 / r.ts
+    nper = min(len(r.y), int(seconds_per_segment * fs))
+    z = r.position - r.position.mean()
+    i = r.current - r.current.mean()
+    f, Pii = signal.welch(i, fs=fs, nperseg=nper)
+    _, Piz = signal.csd(i, z, fs=fs, nperseg=nper)
+    _, coh = signal.coherence(i, z, fs=fs, nperseg=nper)
+    G = Piz / np.where(Pii > 0, Pii, np.nan)
+    pt = point(params, float(rig.to_x(r.position.mean())))
+    s = 2j * np.pi * f
+    sign = -1.0 if rig.convention == "gap" else 1.0
+    M = sign * pt.dF_di / (params.m_k * s**2 - pt.dF_dx)
+    band = (f >= 1.0) & (f <= 20.0)
+    return {"f_Hz": f, "measured": G, "model": M, "coherence": coh,
+            "summary": {"band_Hz": [1.0, 20.0], "mean_coherence": float(np.mean(coh[band])),
+                        "gain_ratio_measured_over_model": float(np.median(np.abs(G[band]) / np.abs(M[band]))),
+                        "phase_difference_deg": float(np.median(np.degrees(np.angle(G[band] / M[band]))))}}
+
+
+# ----------------------------------------------------------------------------- verdict and report
+
+#: A current model explaining less than this fit [%] from the actuator signal is at fault.
+MIN_CURRENT_FIT = 80.0
+#: Skill against "stays put" at 20 ms that a model of the mechanics must reach to count as explaining.
+MIN_SKILL = 0.2
+
+
+def information(rig: Rig, r: RigRecord) -> list[str]:
+    """Why a segment carries too little information to judge a model (empty: enough)."""
+    why = []
+    if r.ts > 0.005:
+        why.append(f"sampled every {r.ts * 1e3:g} ms: the 5 ms prediction is under one sample and the ball's "
+                   "open-loop time constant (tens of ms) spans only a few samples")
+    if rig.resolution:
+        h = max(1, int(round(0.02 / r.ts)))
+        moves = np.abs(r.position[h:] - r.position[:-h])
+        if np.median(moves) < 2 * rig.resolution:
+            why.append(f"the position moves less than two quantisation steps ({rig.resolution * 1e3:g} mm) in 20 ms "
+                       f"on most samples (median {np.median(moves) * 1e3:.3f} mm)")
+    return why
+
+
+def conclude(rig: Rig, figs: list[dict], info: list[list[str]], cal: dict | None) -> tuple[str, list[str]]:
+    """The verdict over the segments (``"explained"``, ``"unexplained: actuator"``, ``"unexplained:
+    mechanics"``, ``"calibration failed"``, ``"too little information"``) and the reasons."""
+    reasons: list[str] = []
+    if not figs:
+        return "calibration failed", ["no levitation segment of at least 1 s: nothing to calibrate on"]
+    if all(info):
+        reasons += sorted({w for ws in info for w in ws})
+        cur = [f["current"]["from_actuator"] for f in figs if f.get("current")]
+        if cur:
+            reasons.append(f"for what it is worth, the rig file's coil model fits the current from the actuator "
+                           f"signal at {np.median(cur):.1f} % (median over segments)")
+        return "too little information", reasons
+    if cal and cal.get("on_bounds"):
+        return "calibration failed", [f"calibrated {', '.join(cal['on_bounds'])} ended on a bound"]
+    cur = [f["current"]["from_actuator"] for f in figs if f.get("current")]
+    skill = [f["position"]["20 ms"]["skill_vs_stays_put"] for f in figs
+             if np.isfinite(f["position"]["20 ms"]["skill_vs_stays_put"])]
+    if not skill:
+        return "too little information", ["the gap never moves within a segment"]
+    if cur and np.median(cur) < MIN_CURRENT_FIT:
+        reasons.append(f"the coil current from the actuator signal fits only {np.median(cur):.1f} % "
+                       f"(median over segments; at least {MIN_CURRENT_FIT:g} % expected)")
+        return "unexplained: actuator", reasons
+    if np.median(skill) < MIN_SKILL:
+        reasons.append(f"the current path is explained ({np.median(cur):.1f} % fit) but the gap 20 ms ahead "
+                       f"is predicted with skill {np.median(skill):+.2f} against 'stays put' (median; "
+                       f"{MIN_SKILL:g} needed): what the model lacks acts on the force or the mechanics")
+        return "unexplained: mechanics", reasons
+    return "explained", [f"current fit {np.median(cur):.1f} %, skill at 20 ms {np.median(skill):+.2f}"]
+
+
+# ----------------------------------------------------------------------------- the commands
+
+def _load_all(rig: Rig, paths: Sequence[str | Path], resample: bool) -> list[tuple[Measured, list[RigRecord]]]:
+    from .measured import read_measured
+
+    out = []
+    for p in paths:
+        m = read_measured(p, resample=resample)
+        out.append((m, prepare(rig, m)))
+    return out
+
+
+def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Sequence[str | Path] = (),
+        resample: bool = False, per_record: bool = True, progress=None, json_name: str = "rigfit.json") -> dict:
+    """Calibrates one parameter set on the records ``paths`` (all their levitation segments), reports
+    every record's figures before and after, each record's own calibration (the spread between
+    records: drift is a finding), the fit on the ``validate`` records not used, the verdict, and
+    writes ``report.md``, the JSON and the plots into ``out``. Everything is read and checked
+    before anything is written."""
+    import json
+
+    say = progress or (lambda msg: None)
+    train = _load_all(rig, paths, resample)
+    held = _load_all(rig, validate, resample)
+    segs = [r for _, rs in train for r in rs]
+    out = Path(out)
+    result: dict = {"rig": rig.name, "rig_file": str(rig.path), "records": [], "validation": [],
+                    "horizons_s": list(HORIZONS_S)}
+    cal = None
+    params = rig.params
+    info = [information(rig, r) for r in segs]
+    if segs and not all(info):
+        say(f"calibrating {', '.join(CALIBRATED[rig.drive])} on {len(segs)} segment(s)")
+        params, cal = calibrate(rig, [r for r, why in zip(segs, info) if not why])
+        say(f"calibrated in {cal['evaluations']} evaluations: cost {cal['cost_before']:.4g} -> {cal['cost_after']:.4g}")
+    result["calibration"] = cal
+    figs_after = []
+    for m, rs in train:
+        entry = {"file": str(m.path), "label": m.label, "warnings": m.warnings, "segments": []}
+        for r in rs:
+            say(f"figures of {r.label}")
+            before, after = figures(rig, r, rig.params), figures(rig, r, params)
+            seg = {"label": r.label, "before": before, "after": after}
+            if per_record and cal and len(segs) > 1 and not information(rig, r):
+                own, own_info = calibrate(rig, [r])
+                seg["own_calibration"] = own_info["values"]
+            frf = current_to_position(rig, r, params)
+            seg["frequency_response"] = frf.get("summary")
+            entry["segments"].append(seg)
+            figs_after.append(after)
+        result["records"].append(entry)
+    for m, rs in held:
+        for r in rs:
+            say(f"validation figures of {r.label}")
+            result["validation"].append({"file": str(m.path), "label": r.label, "before": figures(rig, r, rig.params),
+                                         "after": figures(rig, r, params)})
+    verdict, reasons = conclude(rig, figs_after, info, cal)
+    result["verdict"], result["reasons"] = verdict, reasons
+    own = [s["own_calibration"] for e in result["records"] for s in e["segments"] if "own_calibration" in s]
+    if len(own) > 1:
+        result["spread"] = {n: {"min": min(o[n] for o in own), "max": max(o[n] for o in own),
+                                "relative": float(np.ptp([o[n] for o in own]) / abs(np.mean([o[n] for o in own])))}
+                            for n in own[0]}
+    result["parameters"] = {n: float(getattr(params, n)) for n in CALIBRATED[rig.drive]}
+    out.mkdir(parents=True, exist_ok=True)
+    plots = _plots(rig, segs[:1], params, out) if segs else []
+    (out / json_name).write_text(json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
+    (out / "report.md").write_text(_markdown(result, plots))
+    result["written"] = [str(out / json_name), str(out / "report.md"), *map(str, plots)]
+    return result
+
+
+def _finite(v):
+    """JSON-safe: non-finite numbers become null (strict JSON has no NaN or Infinity)."""
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    if isinstance(v, (float, np.floating)):
+        return float(v) if np.isfinite(v) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    return v
+
+
+def _row(label: str, f: dict) -> str:
+    cur = f.get("current") or {}
+    cells = [label, f"{cur.get('from_actuator', float('nan')):.1f}"]
+    for h in ("5 ms", "20 ms", "50 ms"):
+        p = f["position"][h]
+        cells.append(f"{p['model']:.1f} / {p['stays_put']:.1f} / {p['constant_velocity']:.1f} ({p['skill_vs_stays_put']:+.2f})")
+    cells.append(f"{cur.get('20 ms', float('nan')):.1f}")
+    return "| " + " | ".join(cells) + " |"
+
+
+def _markdown(res: dict, plots: list[Path]) -> str:
+    head = ("| segment | current from actuator, fit % | gap 5 ms: model / stays put / const. velocity (skill) "
+            "| 20 ms | 50 ms | current 20 ms ahead, fit % |\n|---|---|---|---|---|---|")
+    lines = [f"# Rig {res['rig']}: measured records", "", f"**Verdict: {res['verdict']}**", ""]
+    lines += [f"- {r}" for r in res["reasons"]]
+    lines += ["", "Fits are NRMSE fit % (MATLAB `compare`); the gap is predicted by the prediction-error replay "
+              "driven by the measured actuator signal (the controller is not replayed); skill = 1 − ‖error of "
+              "the model‖/‖error of 'stays put'‖ (> 0: the model beats the naive predictor).", ""]
+    cal = res.get("calibration")
+    if cal:
+        lines += ["## Calibration", "", "| parameter | rig file | calibrated |", "|---|---|---|"]
+        lines += [f"| {n} | {cal['rig_values'][n]:.6g} | {cal['values'][n]:.6g} |" for n in cal["names"]]
+        lines += ["", f"Cost {cal['cost_before']:.4g} → {cal['cost_after']:.4g} in {cal['evaluations']} evaluations."]
+        if res.get("spread"):
+            lines += ["", "Each record calibrated on its own (the spread between records):", "",
+                      "| parameter | min | max | spread (max − min)/mean |", "|---|---|---|---|"]
+            lines += [f"| {n} | {s['min']:.6g} | {s['max']:.6g} | {100 * s['relative']:.1f} % |"
+                      for n, s in res["spread"].items()]
+        lines.append("")
+    for title, key in (("Before calibration (the rig file's values)", "before"), ("After calibration", "after")):
+        lines += [f"## {title}", "", head]
+        lines += [_row(s["label"], s[key]) for e in res["records"] for s in e["segments"]]
+        lines.append("")
+    if res["validation"]:
+        lines += ["## Validation on records not used for calibration", "", head]
+        lines += [_row(v["label"], v["after"]) for v in res["validation"]]
+        lines.append("")
+    fr = [s["frequency_response"] for e in res["records"] for s in e["segments"] if s.get("frequency_response")]
+    if fr:
+        lines += ["## Current to gap: measured against the model (1–20 Hz)", "",
+                  "| segment | mean coherence | gain measured/model | phase difference [deg] |", "|---|---|---|---|"]
+        lines += [f"| {s['label']} | {s['frequency_response']['mean_coherence']:.2f} | "
+                  f"{s['frequency_response']['gain_ratio_measured_over_model']:.2f} | "
+                  f"{s['frequency_response']['phase_difference_deg']:+.0f} |"
+                  for e in res["records"] for s in e["segments"] if s.get("frequency_response")]
+        lines.append("")
+    lines += [f"![{p.stem}]({p.name})" for p in plots]
+    return "\n".join(lines) + "\n"
+
+
+def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    r = segs[0]
+    written = []
+    o = predict(rig, r, params, 0.020)
+    oc = predict(rig, r, params, r.ts, use_current=False)
+    n = len(r.y)
+    k0 = min(n - 1, int(round(2.0 / r.ts)))
+    k1 = min(n, k0 + int(round(3.0 / r.ts)))
+    t = np.arange(n) * r.ts
+    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    ax[0].plot(t[k0:k1], 1e3 * r.position[k0:k1], "k", lw=1, label="measured")
+    ax[0].plot(t[k0:k1], 1e3 * rig.position_for_reading(o["y_pred"][k0:k1]), "C1", lw=1, label="model, 20 ms ahead")
+    ax[0].set_ylabel(f"position ({rig.convention}) [mm]")
+    ax[0].legend(loc="best")
+    if r.current is not None:
+        ax[1].plot(t[k0:k1], r.current[k0:k1], "k", lw=1, label="measured")
+        ax[1].plot(t[k0:k1], oc["i_pred"][k0:k1], "C0", lw=1, label="model from the actuator signal")
+        ax[1].legend(loc="best")
+    ax[1].set_ylabel("coil current [A]")
+    ax[1].set_xlabel("time in segment [s]")
+    fig.suptitle(r.label)
+    fig.tight_layout()
+    p = out / "prediction.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    written.append(p)
+    frf = current_to_position(rig, r, params)
+    if frf:
+        f = frf["f_Hz"]
+        band = (f > 0.3) & (f < 60)
+        fig, ax = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+        ax[0].loglog(f[band], np.abs(frf["measured"][band]), "k", label="measured (Welch)")
+        ax[0].loglog(f[band], np.abs(frf["model"][band]), "C1", label="model, linearised")
+        ax[0].set_ylabel("|gap/current| [m/A]")
+        ax[0].legend()
+        ax[1].semilogx(f[band], np.degrees(np.angle(frf["measured"][band])), "k")
+        ax[1].semilogx(f[band], np.degrees(np.angle(frf["model"][band])), "C1")
+        ax[1].set_ylabel("phase [deg]")
+        ax[2].semilogx(f[band], frf["coherence"][band], "k")
+        ax[2].set_ylabel("coherence")
+        ax[2].set_xlabel("frequency [Hz]")
+        fig.suptitle(f"current to gap: {r.label}")
+        fig.tight_layout()
+        p = out / "frequency_response.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        written.append(p)
+    return written
