@@ -1,7 +1,9 @@
 /* FMI 2.0 co-simulation entry points for the CE152 plant (maglev_plant.c). */
+#include <ctype.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "fmi2Functions.h"
@@ -147,10 +149,84 @@ static void plant_reset(Fmu *f) {
     f->stop_defined = 0;
 }
 
+/* A rig's FMU (maglev-cosim fmu --rig) carries its parameters in resources/start_values.txt, one
+ * "name value" per line: they replace the C defaults, so that the FMU uses the start values its
+ * modelDescription.xml states. No file (the CE152 FMU): the defaults. Returns 0, or -1 with msg. */
+#define START_VALUES_FILE "start_values.txt"
+static int resource_path(const char *uri, char *out, size_t len) {
+    const char *p;
+    if (strncmp(uri, "file:///", 8) == 0) p = uri + 7;       /* file:///path */
+    else if (strncmp(uri, "file://localhost/", 17) == 0) p = uri + 16;
+    else if (strncmp(uri, "file:/", 6) == 0) p = uri + 5;     /* file:/path */
+    else return -1;
+    size_t n = 0;
+    for (; *p && n + 1 < len; p++) {
+        if (p[0] == '%' && isxdigit((unsigned char)p[1]) && isxdigit((unsigned char)p[2])) {
+            char hex[3] = {p[1], p[2], 0};
+            out[n++] = (char)strtol(hex, NULL, 16);
+            p += 2;
+        } else {
+            out[n++] = *p;
+        }
+    }
+    if (*p) return -1;
+    while (n > 0 && out[n - 1] == '/') n--;
+    if (n + 1 + sizeof START_VALUES_FILE > len) return -1;
+    out[n] = '/';
+    memcpy(out + n + 1, START_VALUES_FILE, sizeof START_VALUES_FILE);
+    return 0;
+}
+
+static int load_start_values(MaglevPlant *m, const char *uri, char *msg, size_t len) {
+    char path[4096];
+    if (!uri || resource_path(uri, path, sizeof path)) return 0;
+    FILE *fp = fopen(path, "r");
+    if (!fp) return 0;
+    char line[512];
+    int ln = 0, rc = 0;
+    while (rc == 0 && fgets(line, sizeof line, fp)) {
+        ln++;
+        if (!strchr(line, '\n') && !feof(fp)) {
+            snprintf(msg, len, "resources/%s line %d: longer than %d characters", START_VALUES_FILE, ln,
+                     (int)sizeof line - 2);
+            rc = -1;
+            break;
+        }
+        char name[64], extra[2];
+        double value;
+        char *hash = strchr(line, '#');
+        if (hash) *hash = 0;
+        int k = sscanf(line, "%63s %lf %1s", name, &value, extra);
+        if (k <= 0) continue; /* blank or comment */
+        if (k != 2) {
+            snprintf(msg, len, "resources/%s line %d: expected 'name value'", START_VALUES_FILE, ln);
+            rc = -1;
+            break;
+        }
+        int vr = -1;
+        for (int j = MAGLEV_FIRST_PARAM; j <= VR_solver_step; j++)
+            if (strcmp(maglev_variables[j].name, name) == 0) vr = j;
+        if (vr < 0) {
+            snprintf(msg, len, "resources/%s line %d: %s is not a parameter of this FMU", START_VALUES_FILE, ln,
+                     name);
+            rc = -1;
+        } else {
+            char why[MAGLEV_MSG_LEN - 56]; /* room for the file and line in msg */
+            if (maglev_check_value((MaglevVR)vr, value, why, sizeof why)) {
+                snprintf(msg, len, "resources/%s line %d: %s", START_VALUES_FILE, ln, why);
+                rc = -1;
+            } else {
+                maglev_set_param(m, (MaglevVR)vr, value);
+            }
+        }
+    }
+    fclose(fp);
+    return rc;
+}
+
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
-    (void)fmuResourceLocation;
     (void)visible;
     /* every NULL returned is explained through the logger, when there is one (FMI 2.0, fmi2Instantiate) */
     if (!functions) return NULL;
@@ -184,6 +260,12 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     f->alloc.release = fmu_release;
     f->alloc.env = f;
     maglev_defaults(&f->plant);
+    char msg[MAGLEV_MSG_LEN];
+    if (load_start_values(&f->plant, fmuResourceLocation, msg, sizeof msg)) {
+        emit(functions, nm, "fmi2Instantiate: %s", msg);
+        functions->freeMemory(f);
+        return NULL;
+    }
     f->state = Instantiated;
     logmsg(f, fmi2OK, "logCalls", "fmi2Instantiate: %s", MAGLEV_GUID);
     return f;

@@ -297,6 +297,31 @@ def _print_rig_result(res: dict) -> None:
     print("wrote " + ", ".join(res["written"]))
 
 
+def cmd_fmu(a: argparse.Namespace) -> dict:
+    from .fmu import ensure_fmu
+    from .report import calibrated_fmu
+    from .rigs import load_rig
+
+    rig = load_rig(a.rig)
+    params = rig.params
+    if a.calibration:
+        try:
+            cal = json.loads(Path(a.calibration).read_text())["parameters"]
+            params = params.replace(**cal)
+            params.validate()
+        except (OSError, KeyError, TypeError, json.JSONDecodeError) as e:
+            raise CliError(f"{a.calibration}: not a calibrate/diagnose JSON with 'parameters' ({e})") from None
+    out = Path(a.out)
+    if out.suffix != ".fmu":
+        raise CliError(f"--out {out}: an FMU file name must end in .fmu")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    calibrated_fmu(ensure_fmu(a.fmu), out, params.to_start_values(),
+                   resources={"rig.toml": rig.path.read_bytes()},
+                   description=f"{rig.description} (rig file {rig.name}, maglev-cosim plant)")
+    print(f"wrote {out} (rig {rig.name}{', calibrated by ' + a.calibration if a.calibration else ''})")
+    return {"fmu": str(out)}
+
+
 def cmd_calibrate(a: argparse.Namespace) -> dict:
     from .rigfit import run
     from .rigs import load_rig
@@ -539,6 +564,15 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--resample", action="store_true",
                    help="interpolate a real record with non-uniform time onto a uniform grid instead of refusing it")
     s.set_defaults(func=cmd_diagnose)
+
+    s = sub.add_parser("fmu", help="write the plant FMU for a rig: the rig's parameters as start values, "
+                       "the rig file in resources/")
+    s.add_argument("--rig", required=True, help="shipped rig name or rig file (docs/rigs.md)")
+    s.add_argument("--out", required=True, help="the FMU file to write (.fmu)")
+    s.add_argument("--calibration", default=None, metavar="JSON",
+                   help="start values from a calibrate or diagnose --rig JSON ('parameters') over the rig's")
+    s.add_argument("--fmu", default=None, help=fmu_help)
+    s.set_defaults(func=cmd_fmu)
 
     s = sub.add_parser("calibrate", help="one parameter set for a rig on several real records: per-record fit, "
                        "parameter spread, validation on records not used")

@@ -16,22 +16,32 @@ from .metrics import nrmse_fit, psd, resid
 from .record import Record
 
 
-def calibrated_fmu(source: Path, out: Path, parameters: Mapping[str, float]) -> Path:
-    """A copy of the FMU ``source`` whose parameter start values are ``parameters``."""
+def calibrated_fmu(source: Path, out: Path, parameters: Mapping[str, float], *,
+                   resources: Mapping[str, bytes] | None = None, description: str | None = None) -> Path:
+    """A copy of the FMU ``source`` whose parameter start values are ``parameters``, with extra
+    ``resources/`` files and, when given, another model description text."""
     from lxml import etree
 
     with zipfile.ZipFile(source) as zin:
         root = etree.fromstring(zin.read("modelDescription.xml"))
+        lines = ["# start values of this FMU's parameters: the FMU reads them at fmi2Instantiate, so that it",
+                 "# uses the start values its modelDescription.xml states (written by maglev-cosim)"]
         for sv in root.iter("ScalarVariable"):
             name = sv.get("name")
             if name in parameters and sv.get("causality") == "parameter":
                 real = sv.find("Real")
                 real.set("start", repr(float(parameters[name])))
+                lines.append(f"{name} {float(parameters[name])!r}")
+        resources = {"start_values.txt": ("\n".join(lines) + "\n").encode(), **(resources or {})}
+        if description:
+            root.set("description", description)
         xml = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
         with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
             for item in zin.infolist():
                 data = xml if item.filename == "modelDescription.xml" else zin.read(item.filename)
                 zout.writestr(item, data)
+            for name, data in resources.items():
+                zout.writestr(f"resources/{name}", data)
     return out
 
 
