@@ -273,6 +273,24 @@ static int advance(MaglevPlant *m, double u, double d, double ts, char *msg, siz
     return 0;
 }
 
+/* The Kalman update with one scalar measurement whose row of H has the single entry h at state j:
+ * gain, state (put back into the plant, d beside it), and the covariance in Joseph form,
+ * P = (I - K H) P (I - K H)' + K r2 K'. */
+static void scalar_update(MaglevPlant *m, double *d, double P[NS][NS], int j, double h, double e, double r2) {
+    double S = h * h * P[j][j] + r2, K[NS], s[NS];
+    for (int i = 0; i < NS; i++) K[i] = P[i][j] * h / S;
+    get_state(m, *d, s);
+    for (int i = 0; i < NS; i++) s[i] += K[i] * e;
+    put_state(m, s);
+    *d = s[4];
+    double IKH[NS][NS];
+    for (int i = 0; i < NS; i++)
+        for (int l = 0; l < NS; l++) IKH[i][l] = (i == l) - (l == j ? K[i] * h : 0.0);
+    sandwich(IKH, P);
+    for (int i = 0; i < NS; i++)
+        for (int l = 0; l < NS; l++) P[i][l] += K[i] * r2 * K[l];
+}
+
 static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
     if (!f || !(f->q_force > 0) || !isfinite(f->q_force) || !(f->f_force > 0) || !isfinite(f->f_force) ||
         !(f->r_sensor > 0) || !isfinite(f->r_sensor) || f->horizon < 0 || f->stride < 1) {
@@ -339,38 +357,14 @@ static int predict(const double *params, const MaglevPid *pid, double ts, const 
         double yhat = maglev_get(&m, VR_y);
         if (fabs(yhat) < 1.0 && fabs(y[k]) < 1.0) {
             double h = 1e-7, H = (maglev_reading(&m, m.x + h, m.time) - maglev_reading(&m, m.x - h, m.time)) / (2 * h);
-            double S = H * H * P[0][0] + r2, e = y[k] - yhat, K[NS], s[NS];
+            double e = y[k] - yhat;
             if (innov) innov[k] = e;
-            if (innov_var) innov_var[k] = S;
-            for (int i = 0; i < NS; i++) K[i] = P[i][0] * H / S;
-            get_state(&m, d, s);
-            for (int i = 0; i < NS; i++) s[i] += K[i] * e;
-            put_state(&m, s);
-            d = s[4];
-            /* Joseph form: P = (I - K H) P (I - K H)' + K r2 K' */
-            double IKH[NS][NS];
-            for (int i = 0; i < NS; i++)
-                for (int j = 0; j < NS; j++) IKH[i][j] = (i == j) - (j == 0 ? K[i] * H : 0.0);
-            sandwich(IKH, P);
-            for (int i = 0; i < NS; i++)
-                for (int j = 0; j < NS; j++) P[i][j] += K[i] * r2 * K[j];
+            if (innov_var) innov_var[k] = H * H * P[0][0] + r2;
+            scalar_update(&m, &d, P, 0, H, e, r2);
         }
         /* measurement update with the measured current (a state of its own only with a lag or a
          * voltage drive; otherwise it is a function of the input and carries nothing new) */
-        if (i_meas && active[2]) {
-            double rc2 = r_current * r_current, S = P[2][2] + rc2, e = i_meas[k] - m.i, K[NS], s[NS];
-            for (int i = 0; i < NS; i++) K[i] = P[i][2] / S;
-            get_state(&m, d, s);
-            for (int i = 0; i < NS; i++) s[i] += K[i] * e;
-            put_state(&m, s);
-            d = s[4];
-            double IKH[NS][NS];
-            for (int i = 0; i < NS; i++)
-                for (int j = 0; j < NS; j++) IKH[i][j] = (i == j) - (j == 2 ? K[i] : 0.0);
-            sandwich(IKH, P);
-            for (int i = 0; i < NS; i++)
-                for (int j = 0; j < NS; j++) P[i][j] += K[i] * rc2 * K[j];
-        }
+        if (i_meas && active[2]) scalar_update(&m, &d, P, 2, 1.0, i_meas[k] - m.i, r_current * r_current);
         /* the controller, on the measured reading: its state for the predictions */
         if (pid) (void)pid_step(pid, &ps, w[k], y[k]);
         /* prediction from here */
