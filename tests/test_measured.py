@@ -5,7 +5,6 @@ rig commands (maglev_cosim.rigfit). The shared records are read from $MAGLEV_REA
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -15,18 +14,7 @@ from maglev_cosim.measured import levitation_segments, read_inteco_mat, read_lev
 from maglev_cosim.record import RecordError
 from maglev_cosim.rigs import load_rig
 
-def _real_data() -> Path:
-    """The shared real records: $MAGLEV_REAL_DATA, else ../shared/data/real beside the clone, else the
-    development machine's /work/shared/data/real (tests needing them skip where none is found)."""
-    if "MAGLEV_REAL_DATA" in os.environ:
-        return Path(os.environ["MAGLEV_REAL_DATA"])
-    for p in (Path(__file__).resolve().parents[2] / "shared" / "data" / "real", Path("/work/shared/data/real")):
-        if p.is_dir():
-            return p
-    return Path("/nonexistent")
-
-
-REAL = _real_data()
+from real_data import REAL
 INTECO = REAL / "inteco-mls2em" / "results"
 LEVITADOR = REAL / "levitador-benchmark" / "data" / "datos_levitador.txt"
 need_real = pytest.mark.skipif(not INTECO.is_dir(), reason="shared real records not present")

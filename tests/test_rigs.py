@@ -3,7 +3,6 @@ and the errors a bad rig file gets (file and key named)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -12,18 +11,7 @@ import pytest
 from maglev_cosim.params import PlantParams, get_params
 from maglev_cosim.rigs import RigError, load_rig, rig_names
 
-def _real_data() -> Path:
-    """The shared real records: $MAGLEV_REAL_DATA, else ../shared/data/real beside the clone, else the
-    development machine's /work/shared/data/real (tests needing them skip where none is found)."""
-    if "MAGLEV_REAL_DATA" in os.environ:
-        return Path(os.environ["MAGLEV_REAL_DATA"])
-    for p in (Path(__file__).resolve().parents[2] / "shared" / "data" / "real", Path("/work/shared/data/real")):
-        if p.is_dir():
-            return p
-    return Path("/nonexistent")
-
-
-REAL = _real_data()
+from real_data import REAL
 
 
 def test_ce152_rig_is_the_papers_section3_set():

@@ -135,6 +135,12 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
     return {"t": np.arange(n) * pid.ts, "w": w, **out}
 
 
+def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int):
+    """The C filter settings (``MaglevFilter``, ``c/maglev_replay.h``) of both prediction entry points."""
+    return m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
+                                        "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride)})
+
+
 def predict(params: PlantParams | Mapping[str, float] | None, pid: PID, w: np.ndarray, y: np.ndarray,
             u: np.ndarray, u_hold: float, *, q_force: float, f_force: float, r_sensor: float, horizon: int,
             stride: int = 1) -> dict[str, np.ndarray]:
@@ -152,8 +158,7 @@ def predict(params: PlantParams | Mapping[str, float] | None, pid: PID, w: np.nd
     if any(len(a) != n for a in arrays):
         raise ValueError("w, y and u must have the same length")
     out = {k: np.empty(n) for k in ("y_pred", "u_pred", "innov", "innov_var")}
-    filt = m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
-                                        "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride)})
+    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     rc = m.lib.maglev_replay_predict(ptr(pv), m.ffi.new("MaglevPid *", pid.c_settings()), filt,
@@ -180,8 +185,7 @@ def predict_measured(params: PlantParams | Mapping[str, float] | None, y: np.nda
     if len(arrays[1]) != n or (cur is not None and len(cur) != n):
         raise ValueError("y, u and the current must have the same length")
     out = {k: np.empty(n) for k in ("y_pred", "i_pred", "innov", "innov_var")}
-    filt = m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
-                                        "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride)})
+    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     rc = m.lib.maglev_replay_predict_measured(ptr(pv), filt, float(ts), *(ptr(a) for a in arrays),

@@ -148,7 +148,7 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     nz = noise_defaults(rig, p0)
     base = np.array([getattr(p0, n) for n in names])
     additive = np.array([n in ("u_0", "x_0") for n in names])
-    lo = np.where(additive, -1.0 if True else 0, 0.5)
+    lo = np.where(additive, -1.0, 0.5)
     hi = np.where(additive, 1.0, 2.0)
     z0 = np.where(additive, 0.0, 1.0)
     evals = [0]
@@ -314,6 +314,7 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
     cal = None
     params = rig.params
     info = [information(rig, r) for r in segs]
+    lacking = {id(r): why for r, why in zip(segs, info)}
     if segs and not all(info):
         say(f"calibrating {', '.join(CALIBRATED[rig.drive])} on {len(segs)} segment(s)")
         params, cal = calibrate(rig, [r for r, why in zip(segs, info) if not why])
@@ -326,7 +327,7 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
             say(f"figures of {r.label}")
             before, after = figures(rig, r, rig.params), figures(rig, r, params)
             seg = {"label": r.label, "before": before, "after": after}
-            if per_record and cal and len(segs) > 1 and not information(rig, r):
+            if per_record and cal and len(segs) > 1 and not lacking[id(r)]:
                 own, own_info = calibrate(rig, [r])
                 seg["own_calibration"] = own_info["values"]
             frf = current_to_position(rig, r, params)
