@@ -96,25 +96,22 @@ static void sample(const MaglevPlant *m, size_t k, double *y, double *x, double 
 
 typedef struct { double integral, e_prev, d_prev; } PidState;
 
-static int pid_check(const MaglevPid *pid, double u_hold, char *msg, size_t len) {
-    if (!pid || !(pid->ts > 0) || !isfinite(pid->ts) || !isfinite(pid->kp) || !isfinite(pid->ki) ||
-        !isfinite(pid->kd) || !isfinite(pid->u_min) || !isfinite(pid->u_max) || !(pid->u_min < pid->u_max) ||
-        !(pid->tf >= 0) || !isfinite(pid->tf) || pid->anti_windup < 0 || pid->anti_windup > 2) {
-        snprintf(msg, len, "invalid PID settings (ts > 0, finite gains and limits, u_min < u_max, tf >= 0, "
-                 "anti_windup 0, 1 or 2)");
-        return -1;
-    }
-    if (!isfinite(u_hold)) {
-        snprintf(msg, len, "initial input u_hold %g is not finite", u_hold);
-        return -1;
-    }
-    return 0;
+static int pid_valid(const MaglevPid *pid) {
+    return pid && pid->ts > 0 && isfinite(pid->ts) && isfinite(pid->kp) && isfinite(pid->ki) && isfinite(pid->kd) &&
+           isfinite(pid->u_min) && isfinite(pid->u_max) && pid->u_min < pid->u_max && pid->tf >= 0 &&
+           isfinite(pid->tf) && pid->anti_windup >= 0 && pid->anti_windup <= 3 &&
+           (pid->anti_windup != 3 || (isfinite(pid->i_lo) && isfinite(pid->i_hi) && pid->i_lo < pid->i_hi &&
+                                      pid->backoff > 0 && pid->backoff <= 1));
 }
 
 /* One sample of the PID (maglev_replay.h), the one difference equation of the C side. */
 static double pid_step(const MaglevPid *pid, PidState *s, double w, double y) {
     double e = w - y;
     double integ = s->integral + pid->ki * pid->ts * e;
+    if (pid->anti_windup == 3 && !(pid->i_lo < s->integral && s->integral < pid->i_hi)) {
+        double lo = pid->backoff * pid->i_lo, hi = pid->backoff * pid->i_hi;
+        integ = s->integral < lo ? lo : (s->integral > hi ? hi : s->integral);
+    }
     double d = pid->tf > 0 ? (pid->tf * s->d_prev + pid->kd * (e - s->e_prev)) / (pid->tf + pid->ts)
                            : pid->kd * (e - s->e_prev) / pid->ts;
     double raw = pid->kp * e + integ + d;
@@ -127,30 +124,110 @@ static double pid_step(const MaglevPid *pid, PidState *s, double w, double y) {
     return uk;
 }
 
-int maglev_replay_pid(const MaglevPid *pid, const double *w, const double *y, size_t n, double u_hold, double *u,
-                      char *msg, size_t len) {
-    if (pid_check(pid, u_hold, msg, len)) return -1;
-    PidState s = {u_hold, 0.0, 0.0};
-    for (size_t k = 0; k < n; k++) {
-        if (!isfinite(w[k]) || !isfinite(y[k])) {
-            snprintf(msg, len, "w[%zu] = %g or y[%zu] = %g is not finite", k, w[k], k, y[k]);
-            return -1;
-        }
-        u[k] = pid_step(pid, &s, w[k], y[k]);
+/* ---- the controllers (maglev_replay.h) ---- */
+
+typedef struct {
+    PidState outer, inner;
+    double xh[3], q;
+} CtlState;
+
+static int finite_all(const double *a, int n) {
+    for (int k = 0; k < n; k++)
+        if (!isfinite(a[k])) return 0;
+    return 1;
+}
+
+static int ctl_check(const MaglevController *c, double u_hold, char *msg, size_t len) {
+    if (!c || c->kind < 0 || c->kind > 2) {
+        snprintf(msg, len, "controller kind must be 0 (PID), 1 (cascade) or 2 (state feedback)");
+        return -1;
+    }
+    if (!pid_valid(&c->pid) || (c->kind == 1 && (!pid_valid(&c->inner) || c->inner.ts != c->pid.ts))) {
+        snprintf(msg, len, "invalid %s settings (ts > 0, finite gains and limits, u_min < u_max, tf >= 0, "
+                 "anti_windup 0 to 3, a band i_lo < i_hi with 0 < backoff <= 1%s)", c->kind == 1 ? "cascade" : (c->kind == 2 ? "state-feedback" : "PID"),
+                 c->kind == 1 ? ", both loops at one ts" : "");
+        return -1;
+    }
+    if (c->kind == 2 && (!finite_all(&c->Phi[0][0], 9) || !finite_all(c->Gam, 3) || !finite_all(&c->C[0][0], 6) ||
+                         !finite_all(&c->L[0][0], 6) || !finite_all(c->K, 3) || !finite_all(c->x_eq, 3) ||
+                         !isfinite(c->k_w) || !isfinite(c->k_int) || !isfinite(c->u_eq) || !isfinite(c->y_eq) ||
+                         !isfinite(c->i_eq) || c->pid.anti_windup > 1)) {
+        snprintf(msg, len, "invalid state-feedback settings (finite matrices and operating point, anti_windup 0 or 1)");
+        return -1;
+    }
+    if (!isfinite(u_hold)) {
+        snprintf(msg, len, "initial input u_hold %g is not finite", u_hold);
+        return -1;
     }
     return 0;
 }
 
-int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const double *w, size_t n,
+static double sf_raw(const MaglevController *c, const CtlState *s, double w) {
+    return c->u_eq + c->k_w * (w - c->y_eq) - c->K[0] * s->xh[0] - c->K[1] * s->xh[1] - c->K[2] * s->xh[2] -
+           c->k_int * s->q;
+}
+
+/* Settled start (maglev_replay.h): x0 is the plant's state (x, v, i), w0 the first reference. */
+static void ctl_start(const MaglevController *c, CtlState *s, double u_hold, const double x0[3], double w0) {
+    memset(s, 0, sizeof *s);
+    s->outer.integral = c->kind == 1 ? x0[2] : u_hold;
+    s->inner.integral = u_hold;
+    if (c->kind == 2) {
+        for (int j = 0; j < 3; j++) s->xh[j] = x0[j] - c->x_eq[j];
+        s->q = c->k_int != 0 ? (sf_raw(c, s, w0) - u_hold) / c->k_int : 0.0;
+    }
+}
+
+static double ctl_step(const MaglevController *c, CtlState *s, double w, double y, double i) {
+    if (c->kind == 0) return pid_step(&c->pid, &s->outer, w, y);
+    if (c->kind == 1) return pid_step(&c->inner, &s->inner, pid_step(&c->pid, &s->outer, w, y), i);
+    const double meas[2] = {y - c->y_eq, i - c->i_eq};
+    double e[2];
+    for (int r = 0; r < 2; r++) e[r] = meas[r] - (c->C[r][0] * s->xh[0] + c->C[r][1] * s->xh[1] + c->C[r][2] * s->xh[2]);
+    for (int j = 0; j < 3; j++) s->xh[j] += c->L[j][0] * e[0] + c->L[j][1] * e[1];
+    double raw = sf_raw(c, s, w);
+    double uk = raw < c->pid.u_min ? c->pid.u_min : (raw > c->pid.u_max ? c->pid.u_max : raw);
+    double dq = c->pid.ts * (w - y);
+    if (!(c->pid.anti_windup == 1 && uk != raw && (raw - uk) * (-c->k_int * dq) > 0)) s->q += dq;
+    double xn[3];
+    for (int j = 0; j < 3; j++)
+        xn[j] = c->Phi[j][0] * s->xh[0] + c->Phi[j][1] * s->xh[1] + c->Phi[j][2] * s->xh[2] + c->Gam[j] * (uk - c->u_eq);
+    memcpy(s->xh, xn, sizeof xn);
+    return uk;
+}
+
+int maglev_replay_control(const MaglevController *c, const double *w, const double *y, const double *i, size_t n,
+                          double u_hold, const double *x0, double *u, char *msg, size_t len) {
+    if (ctl_check(c, u_hold, msg, len)) return -1;
+    if (c->kind != 0 && (!i || !x0 || !finite_all(x0, 3))) {
+        snprintf(msg, len, "a cascade or state feedback needs the measured current and a finite start state");
+        return -1;
+    }
+    const double zero[3] = {0, 0, 0};
+    CtlState s;
+    ctl_start(c, &s, u_hold, x0 ? x0 : zero, n ? w[0] : 0.0);
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(w[k]) || !isfinite(y[k]) || (i && !isfinite(i[k]))) {
+            snprintf(msg, len, "sample %zu: w, y or the current is not finite", k);
+            return -1;
+        }
+        u[k] = ctl_step(c, &s, w[k], y[k], i ? i[k] : 0.0);
+    }
+    return 0;
+}
+
+int maglev_replay_closed_loop(const double *params, const MaglevController *c, const double *w, size_t n,
                               double u_hold, double *u, double *y, double *x, double *v, double *i,
                               char *msg, size_t len) {
     MaglevPlant m;
-    if (pid_check(pid, u_hold, msg, len)) return -1;
+    if (ctl_check(c, u_hold, msg, len)) return -1;
     if (setup(&m, params, u_hold, msg, len)) {
         maglev_release(&m, &maglev_std_allocator);
         return -1;
     }
-    PidState ps = {u_hold, 0.0, 0.0};
+    const double x0[3] = {m.x, m.v, maglev_get(&m, VR_i)};
+    CtlState cs;
+    ctl_start(c, &cs, u_hold, x0, n ? w[0] : 0.0);
     double t = 0.0;
     int rc = 0;
     for (size_t k = 0; k < n; k++) {
@@ -161,16 +238,16 @@ int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const 
         }
         double yk;
         sample(&m, k, y, x, v, i, &yk);
-        double uk = pid_step(pid, &ps, w[k], yk);
+        double uk = ctl_step(c, &cs, w[k], yk, maglev_get(&m, VR_i));
         if (u) u[k] = uk;
         /* the FMU's clock: the master adds ts to the previous communication point */
         m.time = t;
         if (maglev_set_input(&m, uk, &maglev_std_allocator, msg, len) ||
-            maglev_step(&m, pid->ts, &maglev_std_allocator, msg, len)) {
+            maglev_step(&m, c->pid.ts, &maglev_std_allocator, msg, len)) {
             rc = -1;
             break;
         }
-        t += pid->ts;
+        t += c->pid.ts;
     }
     maglev_release(&m, &maglev_std_allocator);
     return rc;
@@ -303,13 +380,13 @@ static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
 
 /* The filter of both entry points: with a PID (closed-loop predictions) or without (pid NULL: the
  * predictions are driven by the measured input), and with an optional measured current. */
-static int predict(const double *params, const MaglevPid *pid, double ts, const MaglevFilter *f, const double *w,
+static int predict(const double *params, const MaglevController *ctl, double ts, const MaglevFilter *f, const double *w,
                    const double *y, const double *u, const double *i_meas, double r_current, size_t n,
                    double u_hold, double *y_pred, double *u_pred, double *i_pred, double *innov,
                    double *innov_var, char *msg, size_t len) {
     MaglevPlant m;
-    if ((pid && pid_check(pid, u_hold, msg, len)) || filter_check(f, msg, len)) return -1;
-    if (!pid && (!(ts > 0) || !isfinite(ts) || !isfinite(u_hold))) {
+    if ((ctl && ctl_check(ctl, u_hold, msg, len)) || filter_check(f, msg, len)) return -1;
+    if (!ctl && (!(ts > 0) || !isfinite(ts) || !isfinite(u_hold))) {
         snprintf(msg, len, "sample time %g s must be > 0 and the initial input finite", ts);
         return -1;
     }
@@ -318,7 +395,7 @@ static int predict(const double *params, const MaglevPid *pid, double ts, const 
         return -1;
     }
     for (size_t k = 0; k < n; k++) {
-        if ((pid && !isfinite(w[k])) || !isfinite(y[k]) || !isfinite(u[k]) || (i_meas && !isfinite(i_meas[k]))) {
+        if ((ctl && !isfinite(w[k])) || !isfinite(y[k]) || !isfinite(u[k]) || (i_meas && !isfinite(i_meas[k]))) {
             snprintf(msg, len, "sample %zu: a measured signal (w, y, u or the current) is not finite", k);
             return -1;
         }
@@ -349,7 +426,11 @@ static int predict(const double *params, const MaglevPid *pid, double ts, const 
     P[3][3] = active[3] ? 1e-4 * mg * mg : 0;
     P[4][4] = f->q_force * f->q_force;
     double d = 0.0, A[NS][NS] = {{0}};
-    PidState ps = {u_hold, 0.0, 0.0};
+    CtlState cs;
+    if (ctl) {
+        const double x0[3] = {m.x, m.v, maglev_get(&m, VR_i)};
+        ctl_start(ctl, &cs, u_hold, x0, n ? w[0] : 0.0);
+    }
     int rc = 0;
     for (size_t k = 0; k < n && rc == 0; k++) {
         m.time = (double)k * ts;
@@ -365,12 +446,13 @@ static int predict(const double *params, const MaglevPid *pid, double ts, const 
         /* measurement update with the measured current (a state of its own only with a lag or a
          * voltage drive; otherwise it is a function of the input and carries nothing new) */
         if (i_meas && active[2]) scalar_update(&m, &d, P, 2, 1.0, i_meas[k] - m.i, r_current * r_current);
-        /* the controller, on the measured reading: its state for the predictions */
-        if (pid) (void)pid_step(pid, &ps, w[k], y[k]);
+        /* the controller, on the measured reading (and current, or the filter's): its state for the
+         * predictions */
+        if (ctl) (void)ctl_step(ctl, &cs, w[k], y[k], i_meas ? i_meas[k] : maglev_get(&m, VR_i));
         /* prediction from here */
         if (f->horizon > 0 && k % (size_t)f->stride == 0 && k + (size_t)f->horizon < n) {
             MaglevPlant cur;
-            PidState pp = ps;
+            CtlState pp = cs;
             double dd = d, uin = u[k], yj = 0.0;
             if (copy_plant(&cur, &m, msg, len)) {
                 rc = -1;
@@ -385,13 +467,13 @@ static int predict(const double *params, const MaglevPid *pid, double ts, const 
                 dd *= a;
                 cur.time = (double)(k + (size_t)j) * ts;
                 yj = maglev_get(&cur, VR_y);
-                uin = pid ? pid_step(pid, &pp, w[k + (size_t)j], yj) : u[k + (size_t)j];
+                uin = ctl ? ctl_step(ctl, &pp, w[k + (size_t)j], yj, maglev_get(&cur, VR_i)) : u[k + (size_t)j];
             }
             double ij = maglev_get(&cur, VR_i);
             maglev_release(&cur, &maglev_std_allocator);
             if (rc) break;
             if (y_pred) y_pred[k + (size_t)f->horizon] = yj;
-            if (u_pred && pid) u_pred[k + (size_t)f->horizon] = uin;
+            if (u_pred && ctl) u_pred[k + (size_t)f->horizon] = uin;
             if (i_pred) i_pred[k + (size_t)f->horizon] = ij;
         }
         /* time update: the nominal step, and its Jacobian by finite differences; the Jacobian
@@ -457,14 +539,14 @@ static int predict(const double *params, const MaglevPid *pid, double ts, const 
     return rc;
 }
 
-int maglev_replay_predict(const double *params, const MaglevPid *pid, const MaglevFilter *f, const double *w,
+int maglev_replay_predict(const double *params, const MaglevController *c, const MaglevFilter *f, const double *w,
                           const double *y, const double *u, size_t n, double u_hold, double *y_pred,
                           double *u_pred, double *innov, double *innov_var, char *msg, size_t len) {
-    if (!pid) {
+    if (!c) {
         snprintf(msg, len, "no controller given (maglev_replay_predict_measured replays without one)");
         return -1;
     }
-    return predict(params, pid, pid->ts, f, w, y, u, NULL, 0.0, n, u_hold, y_pred, u_pred, NULL, innov, innov_var,
+    return predict(params, c, c->pid.ts, f, w, y, u, NULL, 0.0, n, u_hold, y_pred, u_pred, NULL, innov, innov_var,
                    msg, len);
 }
 

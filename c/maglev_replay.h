@@ -10,29 +10,55 @@
  *   D[k] = kd*(e[k] - e[k-1])/ts, or with a filter (tf*D[k-1] + kd*(e[k] - e[k-1]))/(tf + ts)
  *   u[k] = clip(kp*e[k] + I[k] + D[k], u_min, u_max)
  * Anti-windup: 1 conditional integration (I is not updated while the output saturates and e
- * pushes further into the limit), 2 clamping (I is kept within [u_min, u_max]). */
+ * pushes further into the limit), 2 clamping (I is kept within [u_min, u_max]), 3 a band, as
+ * microcontroller firmware often has it: I integrates only while i_lo < I[k-1] < i_hi, otherwise
+ * I[k] = clip(I[k-1], backoff*i_lo, backoff*i_hi). */
 typedef struct {
     double ts, kp, ki, kd, u_min, u_max;
     double tf;       /* derivative filter time constant [s], 0 = off */
-    int anti_windup; /* 0 none, 1 conditional integration, 2 clamping */
+    int anti_windup; /* 0 none, 1 conditional integration, 2 clamping, 3 band */
+    double i_lo, i_hi, backoff; /* the band (anti_windup 3): i_lo < i_hi, 0 < backoff <= 1 */
 } MaglevPid;
 
-/* The PID alone over given w and y (n samples), settled before: I = u_hold, e[-1] = 0, D = 0. */
-int maglev_replay_pid(const MaglevPid *pid, const double *w, const double *y, size_t n, double u_hold,
-                      double *u, char *msg, size_t msglen);
+/* The controller of a closed loop: at t_k it reads the reference w [MU], the plant's reading y [MU]
+ * and the coil current i [A], and gives u [MU], held over the next sample. Kinds:
+ *   0 PID: u = PID(w - y) (pid above);
+ *   1 cascade: the position loop pid gives the current reference r = PID(w - y) [A] (its limits:
+ *     the reference's range), the current loop inner gives u = PID(r - i) (sample time pid.ts);
+ *   2 state feedback with an observer, on deviations from an operating point (x_eq [m, m/s, A],
+ *     u_eq [MU], y_eq [MU], i_eq [A]); sample time, limits and anti-windup (0 or 1) from pid:
+ *       e = (y - y_eq, i - i_eq) - C*xh,  xh = xh + L*e                  measurement update
+ *       u = clip(u_eq + k_w*(w - y_eq) - K*xh - k_int*q, u_min, u_max)
+ *       q = q + ts*(w - y)     (held while u saturates and q would push further: anti_windup 1)
+ *       xh = Phi*xh + Gam*(u - u_eq)                                        time update
+ * Settled start: a PID's integrator holds u_hold; a cascade's position loop holds the plant's
+ * current at the start and its current loop u_hold; the observer starts at the plant's state, q
+ * where u = u_hold. */
+typedef struct {
+    int kind;        /* 0 PID, 1 cascade, 2 state feedback */
+    MaglevPid pid;   /* the PID; the cascade's position loop; the state feedback's ts, limits, anti_windup */
+    MaglevPid inner; /* the cascade's current loop */
+    double Phi[3][3], Gam[3], C[2][3], L[3][2], K[3];
+    double k_w, k_int, x_eq[3], u_eq, y_eq, i_eq;
+} MaglevController;
+
+/* The controller alone over given w, y [MU] and i [A] (i may be NULL for a PID), n samples,
+ * settled before at u_hold [MU] with the plant at state x0 = (x [m], v [m/s], i [A]). */
+int maglev_replay_control(const MaglevController *c, const double *w, const double *y, const double *i, size_t n,
+                          double u_hold, const double *x0, double *u, char *msg, size_t msglen);
 
 /* params: MAGLEV_NPARAMS values in value-reference order from VR_k_DA.
- * At t_k: y[k] is read, u[k] = PID(w[k], y[k]) is held over [t_k, t_k + ts).
- * The loop starts settled: e[-1] = 0, integrator = u_hold, plant input u_hold.
+ * At t_k: y[k] is read, u[k] = controller(w[k], y[k], i(t_k)) is held over [t_k, t_k + ts).
+ * The loop starts settled (above), plant input u_hold.
  * Any of u, y, x, v, i may be NULL. Returns 0, or -1 with a message. */
-int maglev_replay_closed_loop(const double *params, const MaglevPid *pid, const double *w, size_t n,
+int maglev_replay_closed_loop(const double *params, const MaglevController *c, const double *w, size_t n,
                               double u_hold, double *u, double *y, double *x, double *v, double *i,
                               char *msg, size_t msglen);
 
 /* Prediction-error replay: an extended Kalman filter on the plant above, driven by the measured
  * input u, corrects the state with each measured reading y, and from every stride-th sample
- * predicts the closed loop horizon samples ahead (plant + PID on the predicted readings, the
- * first input being the measured u[k]). The disturbance is part of the model: a random force d
+ * predicts the closed loop horizon samples ahead (plant + controller on the predicted readings
+ * and currents, the first input being the measured u[k]). The disturbance is part of the model: a random force d
  * on the ball, a first-order Gauss-Markov process (RMS q_force, corner f_force: d[k+1] =
  * a*d[k] + w[k], a = exp(-2*pi*f_force*ts)), and white sensor noise of RMS r_sensor. The EKF
  * state is (x, v, i, F, d); i and F take part only when their lags T_a, T_F are on. */
@@ -48,7 +74,7 @@ typedef struct {
  * made); innov[k] = y[k] - (its one-step prediction), innov_var[k] its variance [MU^2] (NaN
  * where the reading sat at the converter's limit and was not used). Any output may be NULL.
  * Returns 0, or -1 with a message. */
-int maglev_replay_predict(const double *params, const MaglevPid *pid, const MaglevFilter *filter,
+int maglev_replay_predict(const double *params, const MaglevController *c, const MaglevFilter *filter,
                           const double *w, const double *y, const double *u, size_t n, double u_hold,
                           double *y_pred, double *u_pred, double *innov, double *innov_var,
                           char *msg, size_t msglen);

@@ -20,6 +20,7 @@ import numpy as np
 from ._resources import ResourceError, c_dir, fast_library_path
 
 if TYPE_CHECKING:
+    from .controllers import Controller
     from .params import PlantParams
     from .pid import PID
 
@@ -106,13 +107,22 @@ def equilibrium_input(p: Mapping[str, float]) -> float:
     return point(p, p["x_start"]).u
 
 
-def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray, *, pid: PID | None = None,
-                u_hold: float | None = None) -> dict[str, np.ndarray]:
-    """The closed loop (plant + PID, Eq. 24/25) over reference ``w`` [MU] in one C call: the low
+def _controller(m: SimpleNamespace, controller):
+    """Any controller (:data:`maglev_cosim.controllers.Controller`) as a C ``MaglevController``."""
+    from .controllers import c_settings
+    from .pid import PID
+
+    return m.ffi.new("MaglevController *", c_settings(controller or PID()))
+
+
+def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray, *,
+                pid: Controller | None = None, u_hold: float | None = None) -> dict[str, np.ndarray]:
+    """The closed loop (plant + controller) over reference ``w`` [MU] in one C call: the low
     level of :func:`maglev_cosim.loop.simulate` (``backend="fast"``), which most callers want.
 
     ``params``: a :class:`PlantParams` or FMU parameter values over the C defaults, the start
-    state included. ``pid``: the controller (default: the paper's). ``u_hold`` [MU]: the settled
+    state included. ``pid``: the controller, any :data:`maglev_cosim.controllers.Controller`
+    (default: the paper's PID, Eq. 24/25). ``u_hold`` [MU]: the settled
     input before t = 0 (default: the equilibrium input at ``x_start``). Returns arrays ``t`` [s],
     ``w``, ``u``, ``y`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A]."""
     from .pid import PID
@@ -125,7 +135,7 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
     if u_hold is None:
         u_hold = equilibrium_input(dict(zip(_defaults(), pv)))
     out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
-    cpid = m.ffi.new("MaglevPid *", pid.c_settings())
+    cpid = _controller(m, pid)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     rc = m.lib.maglev_replay_closed_loop(ptr(pv), cpid, ptr(w), n, float(u_hold), *(ptr(out[k]) for k in
@@ -141,7 +151,7 @@ def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float,
                                         "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride)})
 
 
-def predict(params: PlantParams | Mapping[str, float] | None, pid: PID, w: np.ndarray, y: np.ndarray,
+def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w: np.ndarray, y: np.ndarray,
             u: np.ndarray, u_hold: float, *, q_force: float, f_force: float, r_sensor: float, horizon: int,
             stride: int = 1) -> dict[str, np.ndarray]:
     """The prediction-error replay in one C call (``maglev_replay_predict``, ``c/maglev_replay.h``):
@@ -161,7 +171,7 @@ def predict(params: PlantParams | Mapping[str, float] | None, pid: PID, w: np.nd
     filt = _filter(m, q_force, f_force, r_sensor, horizon, stride)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    rc = m.lib.maglev_replay_predict(ptr(pv), m.ffi.new("MaglevPid *", pid.c_settings()), filt,
+    rc = m.lib.maglev_replay_predict(ptr(pv), _controller(m, pid), filt,
                                      *(ptr(a) for a in arrays), n, float(u_hold),
                                      *(ptr(out[k]) for k in ("y_pred", "u_pred", "innov", "innov_var")), msg, 256)
     if rc != 0:
@@ -199,14 +209,27 @@ def predict_measured(params: PlantParams | Mapping[str, float] | None, y: np.nda
 
 def pid_only(pid: PID, w: np.ndarray, y: np.ndarray, u_hold: float) -> np.ndarray:
     """The C PID alone over given ``w`` and ``y`` [MU], settled at ``u_hold`` [MU]: its outputs [MU]."""
+    return control(pid, w, y, None, u_hold)
+
+
+def control(controller: Controller, w: np.ndarray, y: np.ndarray, current: np.ndarray | None, u_hold: float,
+            x0: tuple[float, float, float] | None = None) -> np.ndarray:
+    """Any controller alone (``maglev_replay_control``) over given reference ``w`` and reading ``y``
+    [MU] and coil ``current`` [A] (a cascade or a state feedback needs it), settled at ``u_hold``
+    [MU] with the plant at ``x0`` = (position [m], velocity [m/s], current [A]): its outputs [MU]."""
     m = _lib()
     w = np.ascontiguousarray(w, dtype=float)
     y = np.ascontiguousarray(y, dtype=float)
+    cur = None if current is None else np.ascontiguousarray(current, dtype=float)
+    if len(y) != len(w) or (cur is not None and len(cur) != len(w)):
+        raise ValueError("w, y and the current must have the same length")
     u = np.empty(len(w))
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    if m.lib.maglev_replay_pid(m.ffi.new("MaglevPid *", pid.c_settings()), ptr(w), ptr(y), len(w), float(u_hold),
-                               ptr(u), msg, 256) != 0:
+    x0a = None if x0 is None else np.ascontiguousarray(x0, dtype=float)
+    if m.lib.maglev_replay_control(_controller(m, controller), ptr(w), ptr(y), m.ffi.NULL if cur is None else ptr(cur),
+                                   len(w), float(u_hold), m.ffi.NULL if x0a is None else ptr(x0a), ptr(u), msg,
+                                   256) != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return u
 

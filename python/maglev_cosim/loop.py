@@ -8,7 +8,7 @@ the equilibrium input.
 
 Backends (``backend=``):
 
-- ``"fast"``: the C plant and the C PID in one call through cffi (``c/maglev_replay.c``);
+- ``"fast"``: the C plant and the C controller in one call through cffi (``c/maglev_replay.c``);
 - ``"fmu"``: the FMU through fmpy, the controller in Python (what any FMI importer sees);
 - ``"reference"``: the independent pure-Python plant (:mod:`maglev_cosim.reference`).
 
@@ -26,6 +26,8 @@ import control
 import numpy as np
 
 from . import formulas
+from .controllers import Controller, c_settings
+from .controllers import start as start_controller
 from .params import PlantParams, as_params
 from .pid import PID
 
@@ -46,7 +48,7 @@ class LoopResponse(control.TimeResponseData):
     """
 
     def __init__(self, t: np.ndarray, w: np.ndarray, u: np.ndarray, y: np.ndarray, x: np.ndarray,
-                 v: np.ndarray, i: np.ndarray, *, params: PlantParams, controller: PID, backend: str,
+                 v: np.ndarray, i: np.ndarray, *, params: PlantParams, controller: Controller, backend: str,
                  x_op: float) -> None:
         super().__init__(np.asarray(t, float), np.vstack([y, u]), states=np.vstack([x, v, i]),
                          inputs=np.asarray(w, float), output_labels=["y", "u"], state_labels=["x", "v", "i"],
@@ -77,8 +79,12 @@ class LoopResponse(control.TimeResponseData):
         path = Path(path)
         c, sig = self.controller, self.signals()
         with path.open("w", newline="") as fh:
-            for k, v in (("ts", c.ts), ("controller", "pid"), ("kp", c.kp), ("ki", c.ki), ("kd", c.kd),
-                         ("u_min", c.u_min), ("u_max", c.u_max)):
+            meta = [("ts", c.ts)]
+            if isinstance(c, PID):   # the record format declares a PID; other controllers go in a file
+                meta += [("controller", "pid"), ("kp", c.kp), ("ki", c.ki), ("kd", c.kd), ("u_min", c.u_min),
+                         ("u_max", c.u_max)]
+                meta += [("tf", c.tf), ("anti_windup", c.anti_windup)] if c.tf or c.anti_windup != "none" else []
+            for k, v in meta:
                 fh.write(f"# {k}: {v}\n")
             wr = csv.writer(fh)
             wr.writerow(["t", "w", "u", "y", "x", "v", "i"])
@@ -117,7 +123,7 @@ def settled_start(p: PlantParams, x_op: float) -> tuple[PlantParams, float]:
 
 
 def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarray, *,
-             controller: PID | None = None, backend: str = "fast", x_op: float | None = None,
+             controller: Controller | None = None, backend: str = "fast", x_op: float | None = None,
              fmu: str | Path | None = None) -> LoopResponse:
     """The closed loop of plant and controller against reference ``w``.
 
@@ -128,8 +134,9 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
         ``"baseline"``), or FMU parameter values [SI units] over the Section 3 set.
     w : array_like
         Reference [MU], one value per controller sample.
-    controller : PID, optional
-        The controller (default: the paper's PID, Eq. 24/25, at 1 kHz).
+    controller : PID, Cascade or StateFeedback, optional
+        The controller (:mod:`maglev_cosim.controllers`; default: the paper's PID, Eq. 24/25, at
+        1 kHz). A cascade or a state feedback also reads the plant's coil current.
     backend : {"fast", "fmu", "reference"}
         Which implementation of the plant runs the loop (module docstring).
     x_op : float, optional
@@ -152,6 +159,7 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
     """
     p = as_params(params)
     controller = controller or PID()
+    c_settings(controller)  # a TypeError for anything else
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}: choose one of {', '.join(BACKENDS)}")
     w = np.asarray(w, dtype=float)
@@ -168,35 +176,36 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
                         controller=controller, backend=backend, x_op=x_op)
 
 
-def _run_fast(start: PlantParams, c: PID, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
+def _run_fast(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
     from . import fast
 
     return fast.closed_loop(start, w, pid=c, u_hold=u_hold)
 
 
-def _stepwise(plant_outputs, set_input, step, c: PID, w: np.ndarray, u_hold: float) -> dict[str, np.ndarray]:
+def _stepwise(plant_outputs, set_input, step, c: Controller, w: np.ndarray, u_hold: float) -> dict[str, np.ndarray]:
     """The loop with the controller in Python, for the plants stepped from Python."""
     n = len(w)
     out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
-    ctl = c.start(u_hold)
+    _, x0, v0, i0 = plant_outputs()
+    ctl = start_controller(c, u_hold, (x0, v0, i0), float(w[0]))
     for k in range(n):
         yk, out["x"][k], out["v"][k], out["i"][k] = plant_outputs()
         out["y"][k] = yk
-        uk = ctl.step(w[k], yk)
+        uk = ctl.step(w[k], yk, out["i"][k])
         out["u"][k] = uk
         set_input(uk)
         step(c.ts)
     return out
 
 
-def _run_fmu(start: PlantParams, c: PID, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
+def _run_fmu(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
     from .fmu import FmuPlant
 
     with FmuPlant({**start.to_start_values(), "u": u_hold}, fmu=fmu) as plant:
         return _stepwise(plant.outputs, plant.set_input, plant.step, c, w, u_hold)
 
 
-def _run_reference(start: PlantParams, c: PID, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
+def _run_reference(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
     from .reference import ReferencePlant
 
     plant = ReferencePlant(start)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, replace
 
 import control
 
-ANTI_WINDUP = ("none", "conditional", "clamping")
+ANTI_WINDUP = ("none", "conditional", "clamping", "band")
 
 
 @dataclass(frozen=True)
@@ -33,9 +33,16 @@ class PID:
         Output limits [MU] (default [0, 1]: the rig's output stays between 0 and 4.5 V in Fig. 21).
     tf : float
         Derivative filter time constant [s] (0: the paper's unfiltered difference).
-    anti_windup : {"none", "conditional", "clamping"}
+    anti_windup : {"none", "conditional", "clamping", "band"}
         ``conditional``: the integrator holds while the output saturates and the error pushes
-        further into the limit; ``clamping``: the integrator stays within [u_min, u_max].
+        further into the limit; ``clamping``: the integrator stays within [u_min, u_max];
+        ``band`` (as microcontroller firmware often has it): the integrator integrates only while
+        its last value lies strictly inside ``(i_lo, i_hi)``, and is otherwise pulled back to
+        ``clip(I, backoff·i_lo, backoff·i_hi)``.
+    i_lo, i_hi : float
+        The band [MU] (``anti_windup="band"``).
+    backoff : float
+        Where the band pulls the integrator back to, as a fraction of its limits (0, 1].
 
     Examples
     --------
@@ -53,9 +60,12 @@ class PID:
     u_max: float = 1.0
     tf: float = 0.0
     anti_windup: str = "none"
+    i_lo: float = 0.0
+    i_hi: float = 0.0
+    backoff: float = 1.0
 
     def __post_init__(self) -> None:
-        vals = (self.ts, self.kp, self.ki, self.kd, self.u_min, self.u_max, self.tf)
+        vals = (self.ts, self.kp, self.ki, self.kd, self.u_min, self.u_max, self.tf, self.i_lo, self.i_hi, self.backoff)
         if not all(isinstance(v, (int, float)) and v == v and abs(v) != float("inf") for v in vals):
             raise ValueError(f"PID: every setting must be a finite number, got {self}")
         if self.ts <= 0 or self.tf < 0 or not self.u_min < self.u_max:
@@ -63,6 +73,9 @@ class PID:
                              f"tf = {self.tf}, limits [{self.u_min}, {self.u_max}] MU")
         if self.anti_windup not in ANTI_WINDUP:
             raise ValueError(f"PID: anti_windup must be one of {', '.join(ANTI_WINDUP)}, got {self.anti_windup!r}")
+        if self.anti_windup == "band" and not (self.i_lo < self.i_hi and 0 < self.backoff <= 1):
+            raise ValueError(f"PID: the band needs i_lo < i_hi and 0 < backoff <= 1, got [{self.i_lo}, {self.i_hi}], "
+                             f"backoff {self.backoff}")
 
     def replace(self, **changes) -> PID:
         """A copy with some settings changed."""
@@ -75,7 +88,8 @@ class PID:
     def c_settings(self) -> dict[str, float | int]:
         """The settings as the C replay's ``MaglevPid`` holds them."""
         return {"ts": self.ts, "kp": self.kp, "ki": self.ki, "kd": self.kd, "u_min": self.u_min,
-                "u_max": self.u_max, "tf": self.tf, "anti_windup": ANTI_WINDUP.index(self.anti_windup)}
+                "u_max": self.u_max, "tf": self.tf, "anti_windup": ANTI_WINDUP.index(self.anti_windup),
+                "i_lo": self.i_lo, "i_hi": self.i_hi, "backoff": self.backoff}
 
     def tf_discrete(self) -> control.TransferFunction:
         """Eq. 25 from e to u (no limits, no filter): see :func:`pid_tf`."""
@@ -101,6 +115,8 @@ class DiscretePID:
         c = self.cfg
         e = w - y
         integral = self.integral + c.ki * c.ts * e
+        if c.anti_windup == "band" and not c.i_lo < self.integral < c.i_hi:
+            integral = min(max(self.integral, c.backoff * c.i_lo), c.backoff * c.i_hi)
         if c.tf > 0:
             d = (c.tf * self.d_prev + c.kd * (e - self.e_prev)) / (c.tf + c.ts)
         else:

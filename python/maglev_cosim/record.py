@@ -29,7 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .pid import ANTI_WINDUP
+from .pid import ANTI_WINDUP as _ALL_ANTI_WINDUP
+
+#: The anti-windup schemes a record's metadata can declare (a band needs its limits: a controller file).
+ANTI_WINDUP = _ALL_ANTI_WINDUP[:3]
 
 REQUIRED = ("t", "w", "u", "y")
 #: PID defaults (the paper's Eq. 22 gains, Sec. 4.6 sampling) for metadata a record omits.

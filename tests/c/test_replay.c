@@ -14,6 +14,59 @@
 
 static void params_with(double *p, MaglevVR vr, double value) { p[vr - MAGLEV_FIRST_PARAM] = value; }
 
+/* The cascade and the state feedback: the controller replayed alone on the loop's own signals gives
+ * the loop's inputs back (one set of equations in both), an exact model predicts its own loop, and
+ * bad settings are refused. */
+static void test_other_controllers(void) {
+    double p[MAGLEV_NPARAMS];
+    for (int k = 0; k < MAGLEV_NPARAMS; k++) p[k] = maglev_replay_param_default(k);
+    params_with(p, VR_T_a, 2e-3);
+    MaglevPoint pt;
+    char msg[256];
+    CHECK(maglev_replay_point(p, 0.0032, NAN, &pt, msg, sizeof msg) == 0, "%s", msg);
+    params_with(p, VR_x_start, 0.0032);
+    params_with(p, VR_i_start, pt.i);
+    /* position loop: reading error [MU] -> current reference [A]; current loop: [A] -> u [MU] */
+    MaglevController cas = {.kind = 1, .pid = {1e-3, 3.0, 4.5, 0.015, 0.0, 1.5, 2e-4, 2, 0, 0, 1},
+                            .inner = {1e-3, 2.0, 400.0, 0.0, 0.0, 1.0, 0.0, 1, 0, 0, 1}};
+    MaglevController sf = {.kind = 2, .pid = {1e-3, 0, 0, 0, 0.0, 1.0, 0.0, 1, 0, 0, 1}, .K = {-900.0, -40.0, 1.5},
+                           .k_int = -20.0, .u_eq = pt.u, .y_eq = pt.y, .i_eq = pt.i, .x_eq = {0.0032, 0.0, pt.i},
+                           .Phi = {{1, 1e-3, 0}, {0, 1, 0}, {0, 0, 0.6}}, .Gam = {0, 0, 0.3},
+                           .C = {{300, 0, 0}, {0, 0, 1}}, .L = {{1e-3, 0}, {0, 0}, {0, 0.5}}};
+    static double w[N], u[N], y[N], x[N], v[N], cur[N], u2[N], yp[N], up[N];
+    for (int k = 0; k < N; k++) w[k] = pt.y + (k > 300 ? 0.03 : 0.0);
+    const MaglevController *ctls[] = {&cas, &sf};
+    for (int c = 0; c < 2; c++) {
+        CHECK(maglev_replay_closed_loop(p, ctls[c], w, N, pt.u, u, y, x, v, cur, msg, sizeof msg) == 0, "%s", msg);
+        double x0[3] = {x[0], v[0], cur[0]}, worst = 0.0;
+        CHECK(maglev_replay_control(ctls[c], w, y, cur, N, pt.u, x0, u2, msg, sizeof msg) == 0, "%s", msg);
+        for (int k = 0; k < N; k++) worst = fmax(worst, fabs(u2[k] - u[k]));
+        CHECK(worst == 0.0, "controller %d alone on the loop's signals: off by %g MU", c, worst);
+        MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 10, 7};
+        CHECK(maglev_replay_predict(p, ctls[c], &f, w, y, u, N, pt.u, yp, up, NULL, NULL, msg, sizeof msg) == 0,
+              "%s", msg);
+        worst = 0.0;
+        for (int k = 0; k < N; k++)
+            if (!isnan(yp[k])) worst = fmax(worst, fmax(fabs(yp[k] - y[k]), fabs(up[k] - u[k])));
+        CHECK(worst < 1e-5, "controller %d: an exact model predicts its own loop: worst error %g", c, worst);
+        CHECK(maglev_replay_control(ctls[c], w, y, NULL, N, pt.u, x0, u2, msg, sizeof msg) == -1 &&
+                  strstr(msg, "current"), "%s", msg);
+    }
+    /* the cascade settles: the ball follows the step */
+    CHECK(maglev_replay_closed_loop(p, &cas, w, N, pt.u, u, y, x, v, cur, msg, sizeof msg) == 0, "%s", msg);
+    CHECK(fabs(y[N - 1] - w[N - 1]) < 2e-3, "cascade: y %g against w %g at the end", y[N - 1], w[N - 1]);
+    cas.inner.ts = 2e-3;
+    CHECK(maglev_replay_closed_loop(p, &cas, w, N, pt.u, u, y, x, v, cur, msg, sizeof msg) == -1 &&
+              strstr(msg, "cascade"), "%s", msg);
+    sf.K[1] = NAN;
+    CHECK(maglev_replay_closed_loop(p, &sf, w, N, pt.u, u, y, x, v, cur, msg, sizeof msg) == -1 &&
+              strstr(msg, "state-feedback"), "%s", msg);
+    sf.K[1] = 0.0;
+    sf.kind = 7;
+    CHECK(maglev_replay_closed_loop(p, &sf, w, N, pt.u, u, y, x, v, cur, msg, sizeof msg) == -1 &&
+              strstr(msg, "kind"), "%s", msg);
+}
+
 int main(void) {
     double p[MAGLEV_NPARAMS];
     for (int k = 0; k < MAGLEV_NPARAMS; k++) p[k] = maglev_replay_param_default(k);
@@ -25,13 +78,14 @@ int main(void) {
     CHECK(maglev_replay_point(p, 0.0032, NAN, &pt, msg, sizeof msg) == 0, "%s", msg);
     params_with(p, VR_x_start, 0.0032);
     params_with(p, VR_i_start, pt.i);
-    MaglevPid pid = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.0, 0};
+    MaglevPid pid = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.0, 0, 0, 0, 1};
+    MaglevController ctl = {.kind = 0, .pid = pid};
     static double w[N], u[N], y[N], yp[N], up[N], e[N], s[N];
     for (int k = 0; k < N; k++) w[k] = pt.y + (k > 300 ? 0.04 : 0.0) - (k > 900 ? 0.07 : 0.0);
-    CHECK(maglev_replay_closed_loop(p, &pid, w, N, pt.u, u, y, NULL, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
+    CHECK(maglev_replay_closed_loop(p, &ctl, w, N, pt.u, u, y, NULL, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
 
     MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 20, 3};
-    CHECK(maglev_replay_predict(p, &pid, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == 0, "%s", msg);
+    CHECK(maglev_replay_predict(p, &ctl, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == 0, "%s", msg);
     int made = 0;
     double worst = 0.0;
     for (int k = 0; k < N; k++) {
@@ -47,7 +101,7 @@ int main(void) {
     double q[MAGLEV_NPARAMS];
     memcpy(q, p, sizeof q);
     params_with(q, VR_T_d, 0.0);
-    CHECK(maglev_replay_predict(q, &pid, &f, w, y, u, N, pt.u, yp, up, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
+    CHECK(maglev_replay_predict(q, &ctl, &f, w, y, u, N, pt.u, yp, up, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
     double wrong = 0.0;
     for (int k = 0; k < N; k++)
         if (!isnan(yp[k])) wrong = fmax(wrong, fabs(yp[k] - y[k]));
@@ -56,7 +110,7 @@ int main(void) {
     /* the unknown-controller path: the same record replayed without the PID, the predictions driven
      * by the measured input, the filter also fed the measured current; exact model, exact predictions */
     static double cur[N], ip[N];
-    CHECK(maglev_replay_closed_loop(p, &pid, w, N, pt.u, NULL, NULL, NULL, NULL, cur, msg, sizeof msg) == 0, "%s", msg);
+    CHECK(maglev_replay_closed_loop(p, &ctl, w, N, pt.u, NULL, NULL, NULL, NULL, cur, msg, sizeof msg) == 0, "%s", msg);
     for (int with_i = 0; with_i < 2; with_i++) {
         CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, with_i ? cur : NULL, 1e-3, N, yp, ip, e, s, msg,
                                              sizeof msg) == 0, "%s", msg);
@@ -86,17 +140,18 @@ int main(void) {
                           {2.5e-4, 8.0, 2.5e-4, -1, 1}, {2.5e-4, 8.0, 2.5e-4, 20, 0}};
     for (size_t b = 0; b < sizeof bad / sizeof bad[0]; b++) {
         msg[0] = 0;
-        CHECK(maglev_replay_predict(p, &pid, &bad[b], w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
+        CHECK(maglev_replay_predict(p, &ctl, &bad[b], w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
                   strstr(msg, "invalid filter settings"), "case %zu: %s", b, msg);
     }
     y[700] = NAN;
-    CHECK(maglev_replay_predict(p, &pid, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
+    CHECK(maglev_replay_predict(p, &ctl, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
               strstr(msg, "sample 700"), "%s", msg);
     y[700] = 0.4;
     params_with(p, VR_k_c, -1.0);
-    CHECK(maglev_replay_predict(p, &pid, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
+    CHECK(maglev_replay_predict(p, &ctl, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
               strstr(msg, "k_c"), "%s", msg);
 
+    test_other_controllers();
     printf("%d checks, %d failures\n", checks, failures);
     return failures ? 1 : 0;
 }
