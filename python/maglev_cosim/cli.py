@@ -289,6 +289,16 @@ def _print_rig_result(res: dict) -> None:
             cur = f.get("current") or {}
             pos = "  ".join(f"{h}: skill {v['skill_vs_stays_put']:+.2f}" for h, v in f["position"].items())
             print(f"{s['label']}: current from actuator {cur.get('from_actuator', float('nan')):.1f} %  {pos}")
+        fb = e.get("force_balance")
+        if fb:
+            print(f"{e['label']}: the force law carries {100 * fb['median']:.0f} % of the weight at the measured "
+                  f"gap and current (median; 10-90 %: {100 * fb['p10']:.0f}-{100 * fb['p90']:.0f} %)")
+        cc = e.get("controller_check")
+        if cc:
+            loops = "".join(f"; {k} {v['fit']:.1f} %" for k, v in cc["loops"].items())
+            cl = ", ".join(f"gap {x['gap_fit']:.1f} % / actuator {x['actuator_fit']:.1f} %" for x in e["closed_loop"])
+            print(f"{e['label']}: declared controller {res['controller']['name']}: actuator fit "
+                  f"{cc['actuator_fit']:.1f} %{loops}; closed loop 20 ms ahead: {cl or 'no segment'}")
     for v in res["validation"]:
         f = v["after"]
         cur = f.get("current") or {}
@@ -327,9 +337,22 @@ def cmd_calibrate(a: argparse.Namespace) -> dict:
     from .rigs import load_rig
 
     rig = load_rig(a.rig)
-    res = run(rig, a.records, a.out, validate=a.validate or (), resample=a.resample, progress=_progress)
+    res = run(rig, a.records, a.out, validate=a.validate or (), resample=a.resample, progress=_progress,
+              controller=_controller_file(a, rig))
     _print_rig_result(res)
     return res
+
+
+def _controller_file(a: argparse.Namespace, rig):
+    """The declared controller of --controller, read and checked before anything runs."""
+    if not getattr(a, "controller", None):
+        return None
+    from .controllers import ControllerError, load_controller
+
+    try:
+        return load_controller(a.controller, rig)
+    except ControllerError as e:
+        raise CliError(str(e)) from None
 
 
 def cmd_diagnose(a: argparse.Namespace) -> dict:
@@ -344,8 +367,9 @@ def cmd_diagnose(a: argparse.Namespace) -> dict:
         if a.rig is None:
             raise CliError(f"{a.record} is a real rig's record: name its rig with --rig (inteco-mls2em, levitador, "
                            "or a rig file)")
-        res = run(load_rig(a.rig), [a.record], a.out, resample=a.resample, per_record=False, progress=_progress,
-                  json_name="diagnosis.json")
+        rig = load_rig(a.rig)
+        res = run(rig, [a.record], a.out, resample=a.resample, per_record=False, progress=_progress,
+                  json_name="diagnosis.json", controller=_controller_file(a, rig))
         _print_rig_result(res)
         return res
 
@@ -561,6 +585,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "the ball on a stop for most of it) with warnings in the report, instead of refusing it")
     s.add_argument("--rig", default=None, help="the rig of a real record: a shipped rig (ce152, inteco-mls2em, "
                    "levitador) or a rig file (docs/rigs.md); an Inteco .mat or levitador text needs it")
+    s.add_argument("--controller", default=None, help="the record's controller, declared in a controller file "
+                   "(docs/controllers.md) or shipped (levitador-cascade, inteco-lqi): checked against the recorded "
+                   "actuator signal and replayed in closed loop; without it the controller is treated as unknown")
     s.add_argument("--resample", action="store_true",
                    help="interpolate a real record with non-uniform time onto a uniform grid instead of refusing it")
     s.set_defaults(func=cmd_diagnose)
@@ -581,6 +608,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output folder")
     s.add_argument("--validate", action="append", metavar="FILE", help="a record to judge the calibration on, "
                    "not used to fit it (repeatable)")
+    s.add_argument("--controller", default=None, help="the record's controller, declared in a controller file "
+                   "(docs/controllers.md) or shipped (levitador-cascade, inteco-lqi): checked against the recorded "
+                   "actuator signal and replayed in closed loop; without it the controller is treated as unknown")
     s.add_argument("--resample", action="store_true", help="interpolate non-uniform time onto a uniform grid")
     s.set_defaults(func=cmd_calibrate)
 

@@ -23,7 +23,7 @@ def nrmse_fit(y: np.ndarray, y_hat: np.ndarray) -> float:
     y = np.asarray(y, dtype=float)
     y_hat = np.asarray(y_hat, dtype=float)
     spread = np.linalg.norm(y - y.mean())
-    if spread == 0:
+    if spread <= 1e-12 * np.sqrt(len(y)) * max(np.abs(y).max(initial=0.0), 1e-300):  # constant, up to rounding
         return float("nan")
     return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / spread))
 

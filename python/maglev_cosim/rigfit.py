@@ -283,6 +283,100 @@ def conclude(rig: Rig, figs: list[dict], info: list[list[str]], cal: dict | None
     return "explained", [f"current fit {np.median(cur):.1f} %, skill at 20 ms {np.median(skill):+.2f}"]
 
 
+#: A rig's force law that carries less or more of the ball's weight than this (median over the
+#: levitating samples, at the measured gap and current) contradicts the record.
+FORCE_BALANCE = (0.7, 1.4)
+#: A declared controller that fits the recorded actuator signal (as a whole, or every loop of a
+#: cascade fed the recorded intermediate signals) below this [%] is not the one that ran.
+MIN_CONTROLLER_FIT = 50.0
+
+
+def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> dict | None:
+    """How much of the ball's weight the rig's force law carries at the record's measured gap and
+    current, over the samples where the ball is off both stops (1 mm clear): the 10th, 50th and
+    90th percentiles of ``F/(m·g)``. A ball that levitates for seconds is held, on average, by its
+    weight: a median far from 1 is a force constant (or a current or position scale) that
+    contradicts the record. ``None`` without a measured current or levitating samples."""
+    from .formulas import point
+
+    p = params or rig.params
+    if m.current is None:
+        return None
+    x = rig.to_x(m.position)
+    lev = (x > p.x_min + 1e-3) & (x < p.x_max - 1e-3)
+    if lev.sum() < 10:
+        return None
+    step = max(1, int(lev.sum() // 2000))
+    ratio = np.array([point(p, float(xk), float(ik)).F for xk, ik in
+                      zip(x[lev][::step], np.clip(m.current[lev][::step], 0, None))]) / (p.m_k * p.g)
+    q10, q50, q90 = np.percentile(ratio, [10, 50, 90])
+    out = {"p10": float(q10), "median": float(q50), "p90": float(q90), "samples": int(lev.sum()),
+           "consistent": bool(FORCE_BALANCE[0] <= q50 <= FORCE_BALANCE[1]),
+           "current_scale_for_weight": float(1 / np.sqrt(q50)) if q50 > 0 else float("nan")}
+    if rig.drive == "voltage" and m.drive is not None:
+        # Ohm's law where the current settles (changes by under 2 % in 5 samples) and the drive
+        # is inside its range: the voltage the rig file makes of the actuator signal over R·i
+        u = np.asarray(rig.input_to_mu(m.drive))
+        volts = np.maximum(p.k_DA * u + p.u_0, p.V_min)
+        i = m.current
+        still = np.zeros(len(i), bool)
+        still[5:] = np.abs(i[5:] - i[:-5]) < 0.02 * np.abs(i[5:])
+        lo, hi = rig.input_range
+        span = rig.input_to_mu(np.array([lo, hi]))
+        still &= (u > span[0] + 0.02 * (span[1] - span[0])) & (u < span[1] - 0.02 * (span[1] - span[0])) & (i > 0.05)
+        if still.sum() >= 10:
+            ohm = np.median(volts[still] / (p.R_c * i[still]))
+            out["ohm"] = {"median_V_over_Ri": float(ohm), "samples": int(still.sum())}
+    return out
+
+
+def controller_check(rig: Rig, m: Measured, ctl) -> dict:
+    """The declared controller replayed alone on the whole record's measured signals (reference,
+    position, current): the NRMSE fit % of the actuator signal it gives against the recorded one.
+    A cascade is also checked loop by loop when the record holds the current reference (each loop
+    fed the recorded signals): the whole cascade compounds small errors of the first loop (a
+    position printed to 0.1 mm through a derivative) in the second loop's integrator, so the
+    per-loop fits say better whether the declaration is right."""
+    from .controllers import Cascade, needs_current
+
+    if m.reference is None or m.drive is None:
+        raise ValueError(f"{m.path}: checking a declared controller needs the recorded reference and actuator signal")
+    if needs_current(ctl) and m.current is None:
+        raise ValueError(f"{m.path}: the declared controller reads the coil current, which the record lacks")
+    y, w = np.asarray(rig.reading(m.position)), np.asarray(rig.reading(m.reference))
+    u_meas = np.asarray(rig.input_to_mu(m.drive))
+    x0 = (float(rig.to_x(m.position[0])), 0.0, float(m.current[0]) if m.current is not None else 0.0)
+    u = fast.control(ctl, w, y, m.current, float(u_meas[0]), x0)
+    out = {"actuator_fit": nrmse_fit(u_meas, u), "loops": {}}
+    r_meas = m.extra.get("current_reference")
+    if isinstance(ctl, Cascade) and r_meas is not None:
+        r = fast.control(ctl.outer, w, y, None, float(r_meas[0]))
+        ui = fast.control(ctl.inner, r_meas, m.current, None, float(u_meas[0]))
+        out["loops"] = {"position -> current reference": {"fit": nrmse_fit(r_meas, r),
+                                                         "rms_A": float(np.sqrt(np.mean((r - r_meas) ** 2)))},
+                        "current -> actuator": {"fit": nrmse_fit(u_meas, ui),
+                                                "rms_input_units": float(np.sqrt(np.mean((ui - u_meas) ** 2)))
+                                                * (rig.params.k_DA if rig.input_unit == "V" else 1.0)}}
+    return out
+
+
+def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams, ctl, horizon_s: float = 0.020) -> dict:
+    """The declared controller replayed in closed loop with the model, by prediction: the filter
+    follows the segment, and from every sample the model and the controller run ``horizon_s``
+    ahead on their own predicted readings and current. Fit % of the gap and of the actuator signal."""
+    seg = m.slice(r.segment.start, r.segment.stop)
+    if seg.reference is None:
+        raise ValueError(f"{m.path}: a closed-loop replay needs the recorded reference")
+    w = np.asarray(rig.reading(seg.reference))
+    h = max(1, int(round(horizon_s / r.ts)))
+    nz = noise_defaults(rig, params)
+    o = fast.predict(_start(rig, r, params), ctl, w, r.y, r.u, float(r.u[0]), q_force=nz["q_force"],
+                     f_force=nz["f_force"], r_sensor=nz["r_sensor"], horizon=h)
+    ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"]) & np.isfinite(o["u_pred"])
+    return {"label": r.label, "horizon_s": horizon_s, "gap_fit": nrmse_fit(r.y[ok], o["y_pred"][ok]),
+            "actuator_fit": nrmse_fit(r.u[ok], o["u_pred"][ok])}
+
+
 # ----------------------------------------------------------------------------- the commands
 
 def _load_all(rig: Rig, paths: Sequence[str | Path], resample: bool) -> list[tuple[Measured, list[RigRecord]]]:
@@ -296,12 +390,15 @@ def _load_all(rig: Rig, paths: Sequence[str | Path], resample: bool) -> list[tup
 
 
 def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Sequence[str | Path] = (),
-        resample: bool = False, per_record: bool = True, progress=None, json_name: str = "rigfit.json") -> dict:
+        resample: bool = False, per_record: bool = True, progress=None, json_name: str = "rigfit.json",
+        controller=None) -> dict:
     """Calibrates one parameter set on the records ``paths`` (all their levitation segments), reports
     every record's figures before and after, each record's own calibration (the spread between
     records: drift is a finding), the fit on the ``validate`` records not used, the verdict, and
     writes ``report.md``, the JSON and the plots into ``out``. Everything is read and checked
-    before anything is written."""
+    before anything is written. ``controller``: a declared controller
+    (:class:`maglev_cosim.controllers.ControllerFile`), checked against each record and replayed
+    in closed loop (:func:`controller_check`, :func:`closed_loop_figures`)."""
     import json
 
     say = progress or (lambda msg: None)
@@ -322,7 +419,12 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
     result["calibration"] = cal
     figs_after = []
     for m, rs in train:
-        entry = {"file": str(m.path), "label": m.label, "warnings": m.warnings, "segments": []}
+        entry = {"file": str(m.path), "label": m.label, "warnings": m.warnings, "segments": [],
+                 "force_balance": force_balance(rig, m)}
+        if controller is not None:
+            say(f"replaying the declared controller {controller.name} on {m.label}")
+            entry["controller_check"] = controller_check(rig, m, controller.controller)
+            entry["closed_loop"] = [closed_loop_figures(rig, r, m, params, controller.controller) for r in rs]
         for r in rs:
             say(f"figures of {r.label}")
             before, after = figures(rig, r, rig.params), figures(rig, r, params)
@@ -341,6 +443,41 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
             result["validation"].append({"file": str(m.path), "label": r.label, "before": figures(rig, r, rig.params),
                                          "after": figures(rig, r, params)})
     verdict, reasons = conclude(rig, figs_after, info, cal)
+    for e in result["records"]:
+        fb = e["force_balance"]
+        if fb and not fb["consistent"]:
+            reasons.append(f"{e['label']}: the rig file's force law carries {100 * fb['median']:.0f} % of the ball's "
+                           f"weight at the recorded gap and current (median over {fb['samples']} levitating samples; "
+                           f"10-90 %: {100 * fb['p10']:.0f}-{100 * fb['p90']:.0f} %): its force constant, or the "
+                           "record's current or position scale, contradicts the record"
+                           + (f"; the current would have to be {fb['current_scale_for_weight']:.2f}x the recorded "
+                              "one to carry the weight" if np.isfinite(fb["current_scale_for_weight"]) else ""))
+        ohm = (fb or {}).get("ohm")
+        if ohm and not 0.7 <= ohm["median_V_over_Ri"] <= 1.4:
+            both = (fb and not fb["consistent"]
+                    and (ohm["median_V_over_Ri"] > 1) == (fb["current_scale_for_weight"] > 1))
+            reasons.append(f"{e['label']}: where the current settles, the rig file's coil voltage is "
+                           f"{ohm['median_V_over_Ri']:.2f}x R times the recorded current (median over {ohm['samples']} "
+                           "samples; Ohm's law wants 1)"
+                           + (f"; both checks find the recorded current too {'small' if ohm['median_V_over_Ri'] > 1 else 'large'} "
+                              f"for the rig file ({fb['current_scale_for_weight']:.1f}x for the weight, "
+                              f"{ohm['median_V_over_Ri']:.1f}x for Ohm's law): the record's current scale, or the rig "
+                              "file's force constant and resistance, are wrong" if both else ""))
+    if controller is not None:
+        result["controller"] = {"name": controller.name, "file": str(controller.path), "type": controller.kind}
+        for e in result["records"]:
+            cc = e["controller_check"]
+            loops = [v["fit"] for v in cc["loops"].values()]
+            best = max(cc["actuator_fit"], min(loops) if loops else -np.inf)
+            if best >= MIN_CONTROLLER_FIT:
+                reasons.append(f"{e['label']}: the declared controller {controller.name} reproduces the recorded "
+                               f"actuator signal (fit {cc['actuator_fit']:.1f} %"
+                               + "".join(f"; {k} {v['fit']:.1f} %" for k, v in cc["loops"].items()) + ")")
+            else:
+                reasons.append(f"{e['label']}: the declared controller {controller.name} does not reproduce the "
+                               f"recorded actuator signal (fit {cc['actuator_fit']:.1f} %): the declaration is not "
+                               "the controller that ran; the figures above rest on the measured actuator signal "
+                               "(the unknown-controller path) and do not depend on it")
     result["verdict"], result["reasons"] = verdict, reasons
     own = [s["own_calibration"] for e in result["records"] for s in e["segments"] if "own_calibration" in s]
     if len(own) > 1:
@@ -414,6 +551,27 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                   f"{s['frequency_response']['gain_ratio_measured_over_model']:.2f} | "
                   f"{s['frequency_response']['phase_difference_deg']:+.0f} |"
                   for e in res["records"] for s in e["segments"] if s.get("frequency_response")]
+        lines.append("")
+    fbs = [(e["label"], e["force_balance"]) for e in res["records"] if e.get("force_balance")]
+    if fbs:
+        lines += ["## Force balance: the share of the weight the force law carries at the measured gap and current",
+                  "", "| record | 10 % | median | 90 % | levitating samples |", "|---|---|---|---|---|"]
+        lines += [f"| {lab} | {100 * f['p10']:.0f} % | {100 * f['median']:.0f} % | {100 * f['p90']:.0f} % | "
+                  f"{f['samples']} |" for lab, f in fbs]
+        lines.append("")
+    if res.get("controller"):
+        c = res["controller"]
+        lines += [f"## The declared controller: {c['name']} ({c['type']})", "",
+                  "Replayed alone on each record's measured signals, against the recorded actuator signal "
+                  "(and loop by loop, when the record holds the current reference); then in closed loop with "
+                  "the calibrated model, 20 ms ahead from every sample.", "",
+                  "| record | actuator fit % | per loop | closed loop 20 ms: gap fit % / actuator fit % |",
+                  "|---|---|---|---|"]
+        for e in res["records"]:
+            cc = e.get("controller_check", {})
+            loops = "; ".join(f"{k}: {v['fit']:.1f} %" for k, v in cc.get("loops", {}).items()) or "-"
+            cl = ", ".join(f"{x['gap_fit']:.1f} / {x['actuator_fit']:.1f}" for x in e.get("closed_loop", [])) or "-"
+            lines.append(f"| {e['label']} | {cc.get('actuator_fit', float('nan')):.1f} | {loops} | {cl} |")
         lines.append("")
     lines += [f"![{p.stem}]({p.name})" for p in plots]
     return "\n".join(lines) + "\n"
