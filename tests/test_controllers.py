@@ -216,3 +216,20 @@ def _inteco(profile, name):
     from maglev_cosim.measured import read_inteco_mat
 
     return read_inteco_mat(REAL / "inteco-mls2em" / "results" / profile / name)
+
+
+@pytest.mark.parametrize("factor, words", [(20.0, "outside rig levitador's travel"), (1e-4, "m read as mm?")])
+def test_a_record_whose_position_contradicts_the_rig_is_refused_naming_the_column(tmp_path, factor, words):
+    from maglev_cosim.measured import Measured
+    from maglev_cosim.record import RecordError
+    from maglev_cosim.rigfit import prepare
+
+    n = 500
+    t = np.arange(n) * 0.01
+    gap = 0.005 + 0.001 * np.sin(t)
+    m = Measured(path=tmp_path / "r.txt", fmt="levitador", t=t, position=gap * factor, reference=np.full(n, 0.005),
+                 current=np.full(n, 0.5), drive=np.full(n, 5.0), drive_unit="V")
+    with pytest.raises(RecordError, match=words) as e:
+        prepare(load_rig("levitador"), m)
+    assert str(e.value).startswith(f"{tmp_path / 'r.txt'}:0:0: column 'position'")
+    prepare(load_rig("levitador"), Measured(**{**m.__dict__, "position": gap}))   # the right units pass

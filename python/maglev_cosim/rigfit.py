@@ -60,6 +60,7 @@ def prepare(rig: Rig, m: Measured, *, min_duration: float = 1.0) -> list[RigReco
     if abs(m.ts - rig.ts) > 1e-3 * rig.ts:
         # any sample rate works, but a rig file states one: a mismatch is a wrong rig or file
         raise ValueError(f"{m.path}: sample time {m.ts:g} s, but rig {rig.name} samples at {rig.ts:g} s")
+    check_units(rig, m)
     rest = rig.stops[1] if rig.convention == "gap" else rig.stops[0]
     segs, _ = levitation_segments(m, rest, min_duration=min_duration)
     out = []
@@ -69,6 +70,28 @@ def prepare(rig: Rig, m: Measured, *, min_duration: float = 1.0) -> list[RigReco
                              y=np.asarray(rig.reading(part.position)), u=np.asarray(rig.input_to_mu(part.drive)),
                              current=part.current, position=part.position, segment=s))
     return out
+
+
+def check_units(rig: Rig, m: Measured) -> None:
+    """Refuses a record whose position contradicts the rig's stops by a unit factor: most samples
+    outside the travel widened by half of it on each side (mm read as m: 1000x too large; or the
+    other way round, a travel squeezed into a thousandth). Names the file and the column."""
+    from .record import RecordError
+
+    lo, hi = rig.stops
+    travel = hi - lo
+    pos = np.asarray(m.position, float)
+    outside = (pos < lo - 0.5 * travel) | (pos > hi + 0.5 * travel)
+    if outside.mean() > 0.5:
+        ratio = np.median(np.abs(pos)) / max(abs(lo), abs(hi))
+        hint = " (mm read as m?)" if ratio > 100 else (" (m read as mm?)" if ratio < 1e-2 else "")
+        raise RecordError(m.path, 0, 0, f"column 'position': {100 * outside.mean():.0f} % of the samples lie outside "
+                          f"rig {rig.name}'s travel {lo:g}..{hi:g} m (median |position| {np.median(np.abs(pos)):.4g} m)"
+                          f"{hint}: the record's units contradict the rig file")
+    span = np.ptp(pos)
+    if 0 < span < 1e-3 * travel and np.median(np.abs(pos)) < 1e-3 * max(abs(lo), abs(hi)):
+        raise RecordError(m.path, 0, 0, f"column 'position': it spans {span:.3g} m against rig {rig.name}'s travel "
+                          f"{travel:g} m (m read as mm?): the record's units contradict the rig file")
 
 
 def _start(rig: Rig, r: RigRecord, params: PlantParams) -> PlantParams:
