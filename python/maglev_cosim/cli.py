@@ -485,9 +485,18 @@ def _truth_table(truth: dict, d: dict) -> str:
 class _Parser(argparse.ArgumentParser):
     """argparse with its errors in one line (no usage dump), like every other failure here."""
 
+    #: Builds the epilog when help is shown: the effect catalogue imports the diagnosis (scipy,
+    #: python-control), which every other command need not pay for at start-up.
+    lazy_epilog = None
+
     def error(self, message: str) -> None:  # type: ignore[override]
         print(f"{self.prog}: error: {message} (see {self.prog.split()[0]} --help)", file=sys.stderr)
         raise SystemExit(2)
+
+    def format_help(self) -> str:
+        if self.lazy_epilog is not None:
+            self.epilog, self.lazy_epilog = self.lazy_epilog(), None
+        return super().format_help()
 
 
 EXAMPLES = """examples:
@@ -519,11 +528,12 @@ def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
     fmt = argparse.RawDescriptionHelpFormatter
-    ap = _Parser(prog="maglev-cosim", formatter_class=fmt, epilog=EXAMPLES + "\n" + _catalogue_help(),
+    ap = _Parser(prog="maglev-cosim", formatter_class=fmt,
                  description="The Humusoft CE152 magnetic levitation rig as an FMI co-simulation FMU, and a "
                              "toolkit that drives it in closed loop and reconciles it with measured records. "
                              "Positions are in mm (or add a unit: 3.2mm, 0.0032m), converter values in MU.")
     ap.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    ap.lazy_epilog = lambda: EXAMPLES + "\n" + _catalogue_help()
     sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser, metavar="COMMAND")
     fmu_help = "FMU to use (default: the installed maglev.fmu, or $MAGLEV_FMU)"
 
@@ -570,7 +580,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", default=None, metavar="FILE", help="also write the figures to this JSON file")
     s.set_defaults(func=cmd_bench)
 
-    s = sub.add_parser("diagnose", formatter_class=fmt, epilog=_catalogue_help(),
+    s = sub.add_parser("diagnose", formatter_class=fmt,
                        help="calibrate the model on a record, find the effect it lacks, report before/after",
                        description="Replays the record in closed loop, calibrates k_c, x_0, k_FV, u_0, tries every "
                                    "effect of the catalogue on held-out blocks, and writes report.md, "
@@ -590,6 +600,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "actuator signal and replayed in closed loop; without it the controller is treated as unknown")
     s.add_argument("--resample", action="store_true",
                    help="interpolate a real record with non-uniform time onto a uniform grid instead of refusing it")
+    s.lazy_epilog = _catalogue_help
     s.set_defaults(func=cmd_diagnose)
 
     s = sub.add_parser("fmu", help="write the plant FMU for a rig: the rig's parameters as start values, "
@@ -620,7 +631,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-simplex", action="store_true", help="skip the Nelder-Mead fit of k_FV (Sec. 3.4.3)")
     s.set_defaults(func=cmd_identify)
 
-    s = sub.add_parser("synth", formatter_class=fmt, epilog=_catalogue_help(),
+    s = sub.add_parser("synth", formatter_class=fmt,
                        help="write a synthetic record from the rig emulator (truth in a .truth.json sidecar)")
     s.add_argument("--out", required=True, help="record file to write")
     s.add_argument("--effect", action="append", metavar="NAME:PARAM=VALUE",
@@ -633,6 +644,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=_positive, default=12.0, metavar="S", help="[s] (default 12)")
     s.add_argument("--seed", type=int, default=0, help="random seed of the noise and the staircase (default 0)")
     s.add_argument("--no-noise", action="store_true", help="no sensor noise, random force or quantisation")
+    s.lazy_epilog = _catalogue_help
     s.set_defaults(func=cmd_synth)
 
     s = sub.add_parser("demo", help="the main job: step, linearise, synthesise and diagnose a record")
