@@ -149,6 +149,7 @@ def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_pa
     assert float(md["T_a"].start) == 0.0
 
 
+@pytest.mark.slow
 def test_identify_prints_the_papers_values(tmp_path):
     rec = tmp_path / "rec.csv"
     assert cli("synth", "--out", str(rec), "--reference", "square", "--seed", "4").returncode == 0

@@ -177,6 +177,7 @@ LEVITADOR = REAL / "levitador-benchmark" / "data" / "datos_levitador.txt"
 
 
 @pytest.mark.skipif(not LEVITADOR.exists(), reason="shared real records not found")
+@pytest.mark.slow
 def test_levitador_cascade_reproduces_each_recorded_loop():
     """The declared cascade, each loop fed the recorded signals, against the record's current
     reference and voltage: what is left is the record's print precision (0.1 mm through the
