@@ -36,6 +36,7 @@ import control
 import numpy as np
 
 from .pid import ANTI_WINDUP, PID, DiscretePID
+from .rigs import RigError
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -360,12 +361,9 @@ def design_state_feedback(params, x_op: float, ts: float, *, q: tuple[float, flo
 
 # --------------------------------------------------------------------------- controller files
 
-class ControllerError(ValueError):
-    """A controller file that cannot be used; ``str()`` is ``FILE: key 'KEY': what is wrong``."""
-
-    def __init__(self, path: str | Path, key: str, message: str) -> None:
-        self.path, self.key, self.message = str(path), key, message
-        super().__init__(f"{path}: " + (f"key '{key}': " if key else "") + message)
+class ControllerError(RigError):
+    """A controller file that cannot be used; ``str()`` is ``FILE: key 'KEY': what is wrong`` (the
+    form of :class:`maglev_cosim.rigs.RigError`)."""
 
 
 def controller_path(name_or_path: str | Path) -> Path:
@@ -409,7 +407,7 @@ def load_controller(name_or_path: str | Path, rig=None) -> ControllerFile:
         Missing, unknown or non-physical keys, or a file that names another rig; the message names
         the file and the key.
     """
-    from .rigs import RigError, _Doc, load_rig
+    from .rigs import _Doc, load_rig
 
     path = controller_path(name_or_path)
     try:
@@ -445,6 +443,8 @@ def load_controller(name_or_path: str | Path, rig=None) -> ControllerFile:
         return ControllerFile(name=name, path=path, description=description,
                               rig=rig_name, kind=kind, controller=ctl,
                               sources={str(k): str(v) for k, v in sources.items()})
+    except ControllerError:
+        raise
     except RigError as e:
         raise ControllerError(e.path, e.key, e.message) from None
 
