@@ -117,16 +117,47 @@ def test_segmentation_splits_at_planted_drops(tmp_path):
     m = read_levitador(f)
     segs, excluded = levitation_segments(m, rest, margin=0.1)
     assert [(s.start, s.stop) for s in segs] == [(110, 390), (510, 790)]
-    assert all(reason == "on its rest" for *_, reason in excluded)
+    assert all(reason == "on a stop at 0.0204 m" for *_, reason in excluded)
+
+
+def test_segmentation_cuts_the_magnet_and_a_coil_that_is_off(tmp_path):
+    """Levitating 0-3 s, stuck to the magnet (gap 0) 3-4 s, levitating 4-7 s, coil off while the
+    gap reads 1 mm 7-8 s (no ball under control), levitating 8-11 s. A 50 ms cut of the current
+    inside a levitating stretch (a controller at its lower limit) is not a coil off."""
+    ts = 0.01
+    t = np.arange(0, 11, ts)
+    z = 0.010 + 1e-4 * np.sin(7 * t)
+    i = np.full_like(t, 0.8)
+    z[(t >= 3) & (t < 4)] = 0.0
+    off = (t >= 7) & (t < 8)
+    z[off], i[off] = 0.001, 0.0156
+    i[(t >= 1) & (t < 1.05)] = 0.0
+    f = tmp_path / "lev.txt"
+    np.savetxt(f, np.c_[t, np.full_like(t, 0.01), z, np.full_like(t, 0.8), i, np.full_like(t, 5.0)], fmt="%.4f")
+    segs, excluded = levitation_segments(read_levitador(f), (0.0, 0.0204), margin=0.1)
+    assert [(s.start, s.stop) for s in segs] == [(0, 290), (410, 690), (810, 1100)]
+    assert [r for *_, r in excluded] == ["on a stop at 0 m", "coil off"]
 
 
 @need_real
 def test_levitador_record_has_its_drops_found():
     m = read_levitador(LEVITADOR)
     rig = load_rig("levitador")
-    segs, excluded = levitation_segments(m, rig.stops[1])
+    segs, excluded = levitation_segments(m, rig.stops)
     assert m.ts == pytest.approx(0.01) and len(segs) >= 3
-    assert sum(s.stop - s.start for s in segs) > 0.8 * m.n
+    # the ball stuck to the magnet (gap 0) 4.34-5.58 s is not levitation, nor the coil off near 50 s
+    assert not any(s.start <= k < s.stop for s in segs for k in (500, 5000))
+    inside = np.concatenate([m.position[s.start:s.stop] for s in segs])
+    assert np.mean(inside < 5e-4) < 0.01 and np.mean(np.abs(inside - rig.stops[1]) < 5e-4) < 0.01
+    assert any("on a stop at 0 m" in r for *_, r in excluded) and any("coil off" in r for *_, r in excluded)
+
+
+@need_real
+def test_a_record_that_logged_the_filter_estimate_as_the_gap_is_flagged():
+    m = read_inteco_mat(INTECO.parent / "results" / "step" / "PID_anti_windup - KF.mat")
+    assert any("Kalman filter's gap" in w for w in m.warnings)
+    m = read_inteco_mat(INTECO.parent / "results" / "step" / "MPC - KF.mat")
+    assert not any("Kalman" in w for w in m.warnings)
 
 
 @need_real

@@ -23,6 +23,7 @@ import math
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -32,6 +33,8 @@ from .record import RecordError
 UNIFORM_TOL = 1e-3
 INTECO_ROWS = {"t": 0, "reference": 1, "position": 2, "velocity": 3, "current": 4, "current_2": 5,
                "control": 6, "control_2": 7, "z_hat": 8, "v_hat": 9, "i_hat": 10, "drive": 12, "drive_2": 13}
+#: A current below ``coil_off`` of its 99th percentile for this long [s] means the coil is off.
+COIL_OFF_MIN = 0.1
 LEVITADOR_COLUMNS = ("t", "reference", "position", "current_reference", "current", "voltage")
 
 
@@ -188,6 +191,12 @@ def read_inteco_mat(path: str | Path, *, coil: int = 1, resample: bool = False) 
                  extra={k: v for k, v in sig.items() if v is not None}, metadata=meta)
     if note:
         m.warnings.append(note)
+    z_hat = m.extra.get("z_hat")
+    if z_hat is not None and np.array_equal(m.position, z_hat):
+        # step/PID_* of the shared data: what the PID saw was logged in place of the sensor
+        m.warnings.append("the gap (logouts row 2) equals the Kalman filter's gap (row 8) sample for sample: "
+                          "this record holds the filter's estimate, not the sensor's reading, so its 'sensor "
+                          "noise' is the filter's and its position lags the ball by the filter's dynamics")
     return m
 
 
@@ -263,31 +272,45 @@ class Segment:
     stop: int
 
 
-def levitation_segments(m: Measured, rest: float, *, tol: float = 5e-4, margin: float = 0.1,
-                        min_duration: float = 1.0) -> tuple[list[Segment], list[tuple[int, int, str]]]:
+def levitation_segments(m: Measured, stops: float | Sequence[float], *, tol: float = 5e-4,
+                        margin: float = 0.1, min_duration: float = 1.0,
+                        coil_off: float = 0.05) -> tuple[list[Segment], list[tuple[int, int, str]]]:
     """Splits a record into levitation segments.
 
-    A sample is off when the ball is within ``tol`` [m] of its rest position ``rest`` [m] (record
-    convention: the stop it falls onto), i.e. not yet lifted or dropped. Each off stretch is widened
-    by ``margin`` [s] on both sides (the lift-off and the fall); what is left and lasts at least
+    A sample is off when the ball is within ``tol`` [m] of one of the ``stops`` [m] (record
+    convention: the rest it falls onto, and the magnet it can stick to), or when the coil is off:
+    a measured current below ``coil_off`` times its 99th percentile for at least ``COIL_OFF_MIN``
+    [s] (a ball cannot fall freely for longer and still levitate). Each off stretch is widened by
+    ``margin`` [s] on both sides (the lift-off and the fall); what is left and lasts at least
     ``min_duration`` [s] is a segment.
 
     Returns
     -------
     segments : list of Segment
     excluded : list of (start, stop, reason)
-        The stretches left out: ``"on its rest"`` or ``"shorter than min_duration"``.
+        The stretches left out: ``"on a stop at G m"``, ``"coil off"`` or
+        ``"shorter than min_duration"``.
     """
-    off = np.abs(m.position - rest) <= tol
+    stops = [float(stops)] if np.isscalar(stops) else [float(s) for s in stops]
+    why = np.full(m.n, "", dtype=object)
+    for s in stops:
+        why[(why == "") & (np.abs(m.position - s) <= tol)] = f"on a stop at {s:g} m"
+    if m.current is not None and coil_off > 0:
+        top = float(np.percentile(np.abs(m.current), 99))
+        low = np.abs(m.current) < coil_off * top
+        for a, b in _runs(low):
+            # a controller may cut the current for a few samples; off for longer, the ball falls
+            if (b - a) * m.ts >= COIL_OFF_MIN:
+                why[a:b][why[a:b] == ""] = "coil off"
+    off = why != ""
     pad = int(round(margin / m.ts))
     if pad and off.any():
         widened = np.zeros_like(off)
         for a, b in _runs(off):
-            widened[max(a - pad, 0):min(b + pad, len(off))] = True
+            widened[max(a - pad, 0):min(b + pad, m.n)] = True
         off = widened
-    segs, excluded = [], []
-    for a, b in _runs(off):
-        excluded.append((a, b, "on its rest"))
+    excluded = [(a, b, " / ".join(sorted(set(why[a:b]) - {""}))) for a, b in _runs(off)]
+    segs = []
     for a, b in _runs(~off):
         if (b - a) * m.ts >= min_duration:
             segs.append(Segment(a, b))

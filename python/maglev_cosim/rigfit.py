@@ -53,16 +53,15 @@ class RigRecord:
 
 
 def prepare(rig: Rig, m: Measured, *, min_duration: float = 1.0) -> list[RigRecord]:
-    """The levitation segments of ``m`` (:func:`maglev_cosim.measured.levitation_segments`, the
-    rest being the rig's lower stop), each as plant signals."""
+    """The levitation segments of ``m`` (:func:`maglev_cosim.measured.levitation_segments`: off the
+    rig's two stops, coil on), each as plant signals."""
     if m.drive is None:
         raise ValueError(f"{m.path}: the record has no actuator signal: a replay needs it")
     if abs(m.ts - rig.ts) > 1e-3 * rig.ts:
         # any sample rate works, but a rig file states one: a mismatch is a wrong rig or file
         raise ValueError(f"{m.path}: sample time {m.ts:g} s, but rig {rig.name} samples at {rig.ts:g} s")
     check_units(rig, m)
-    rest = rig.stops[1] if rig.convention == "gap" else rig.stops[0]
-    segs, _ = levitation_segments(m, rest, min_duration=min_duration)
+    segs, _ = levitation_segments(m, rig.stops, min_duration=min_duration)
     out = []
     for s in segs:
         part = m.slice(s.start, s.stop)
