@@ -234,3 +234,60 @@ def test_a_record_whose_position_contradicts_the_rig_is_refused_naming_the_colum
         prepare(load_rig("levitador"), m)
     assert str(e.value).startswith(f"{tmp_path / 'r.txt'}:0:0: column 'position'")
     prepare(load_rig("levitador"), Measured(**{**m.__dict__, "position": gap}))   # the right units pass
+
+
+CE152_CASCADE = """name = "ce152-cascade"
+rig = "ce152"
+type = "cascade"
+sample_time = 0.001
+signals = "plant"
+[position]
+kp = 3.0
+ki = 4.5
+kd = 0.015
+tf = 2e-4
+limits = [0.0, 1.5]
+anti_windup = "clamping"
+[current]
+kp = 2.0
+ki = 400.0
+limits = [0.0, 1.0]
+anti_windup = "conditional"
+"""
+
+
+def test_a_record_declares_its_controller_file_and_the_replay_runs_it(tmp_path):
+    """A CE152 record whose metadata names a controller file (docs/record-format.md): the file is
+    read relative to the record, its controller replays the record exactly, and its limits are
+    the record's."""
+    from maglev_cosim.record import read_record
+    from maglev_cosim.replay import record_controller, replay
+
+    (tmp_path / "ctl").mkdir()
+    (tmp_path / "ctl" / "cascade.toml").write_text(CE152_CASCADE)
+    ctl = load_controller(tmp_path / "ctl" / "cascade.toml", "ce152").controller
+    assert ctl == CASCADE
+    w = reference_signal("step", 1.0, base=0.394, amplitude=0.04, t_step=0.1)
+    r = simulate(LAGGED, w, controller=ctl)
+    f = r.to_csv(tmp_path / "rec.csv", controller_file="ctl/cascade.toml")
+    rec = read_record(f)
+    assert record_controller(rec) == CASCADE and (rec.u_min, rec.u_max) == (0.0, 1.0)
+    again = replay(rec, LAGGED.to_start_values())
+    assert np.max(np.abs(again["y"] - r["y"])) < 1e-9
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda t: t.replace("ctl/cascade.toml", "ctl/missing.toml"), r"rec.csv:2:\d+: controller 'ctl/missing.toml': .*no such file"),
+    (lambda t: t.replace("# ts: 0.001", "# ts: 0.001\n# kp: 2"), r"rec.csv:2:1: kp: the controller is declared by the file"),
+    (lambda t: t.replace("# ts: 0.001", "# ts: 0.002"), r"rec.csv:1:\d+: ts 0.002 disagrees with the sample time 0.001"),
+])
+def test_a_declared_controller_file_that_does_not_fit_is_refused_where_the_record_says_it(tmp_path, edit, words):
+    from maglev_cosim.record import RecordError, read_record
+
+    (tmp_path / "ctl").mkdir()
+    (tmp_path / "ctl" / "cascade.toml").write_text(CE152_CASCADE)
+    w = reference_signal("step", 1.0, base=0.394, amplitude=0.04, t_step=0.1)
+    f = simulate(LAGGED, w, controller=CASCADE).to_csv(tmp_path / "rec.csv", controller_file="ctl/cascade.toml")
+    f.write_text(edit(f.read_text()))
+    with pytest.raises(RecordError, match=words):
+        read_record(f)

@@ -73,14 +73,19 @@ class LoopResponse(control.TimeResponseData):
         """``t, w, u, y, x, v, i`` by name."""
         return {k: self[k] for k in ("t", "w", "u", "y", "x", "v", "i")}
 
-    def to_csv(self, path: str | Path) -> Path:
+    def to_csv(self, path: str | Path, *, controller_file: str | None = None) -> Path:
         """Writes the response in the record format (docs/record-format.md): the controller as
-        ``# key: value`` metadata, then ``t,w,u,y,x,v,i``."""
+        ``# key: value`` metadata, then ``t,w,u,y,x,v,i``. A cascade or state feedback is declared
+        by the controller file it was read from, ``controller_file`` (a path relative to the
+        record's folder, or a shipped controller's name)."""
         path = Path(path)
         c, sig = self.controller, self.signals()
+        if not isinstance(c, PID) and controller_file is None:
+            raise ValueError(f"a {type(c).__name__} is declared in a record by its controller file: pass "
+                             "controller_file")
         with path.open("w", newline="") as fh:
-            meta = [("ts", c.ts)]
-            if isinstance(c, PID):   # the record format declares a PID; other controllers go in a file
+            meta = [("ts", c.ts)] + ([("controller", controller_file)] if controller_file else [])
+            if isinstance(c, PID) and controller_file is None:
                 meta += [("controller", "pid"), ("kp", c.kp), ("ki", c.ki), ("kd", c.kd), ("u_min", c.u_min),
                          ("u_max", c.u_max)]
                 meta += [("tf", c.tf), ("anti_windup", c.anti_windup)] if c.tf or c.anti_windup != "none" else []

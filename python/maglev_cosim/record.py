@@ -26,6 +26,7 @@ import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -81,6 +82,10 @@ class Record:
     warnings: list[str] = field(default_factory=list)
     tf: float = 0.0
     anti_windup: str = "none"
+    #: A controller declared by a controller file (metadata ``controller: FILE.toml``); None: the PID
+    #: of the metadata. ``controller_file`` is where it came from.
+    controller: Any = None
+    controller_file: str | None = None
 
     @property
     def n(self) -> int:
@@ -94,6 +99,20 @@ class Record:
     def pid_kwargs(self) -> dict[str, float]:
         """The record's controller as keyword arguments (ts, kp, ki, kd, u_min, u_max, tf, anti_windup)."""
         return {k: getattr(self, k) for k in (*PID_DEFAULTS, "tf", "anti_windup")}
+
+
+def _controller_file(path: Path, lines: list[str], meta: dict[str, str], meta_line: dict[str, int]):
+    """The controller file a record's metadata names (a path relative to the record's folder, or a
+    shipped controller), read for the CE152 rig; its errors point at the metadata value."""
+    from .controllers import ControllerError, load_controller
+
+    value = meta["controller"].strip()
+    line = meta_line["controller"]
+    candidate = Path(value) if Path(value).is_absolute() else Path(path).parent / value
+    try:
+        return load_controller(candidate if candidate.exists() or value.endswith(".toml") else value, "ce152")
+    except ControllerError as e:
+        raise RecordError(path, line, _value_column(lines[line - 1]), f"controller '{value}': {e}") from None
 
 
 def _value_column(raw: str) -> int:
@@ -269,10 +288,21 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES, plausibilit
             params_pid[key] = _number(path, line, _value_column(lines[line - 1]), key, meta[key])
         else:
             params_pid[key] = default
+    declared = None
     if meta.get("controller", "pid").lower() != "pid":
-        line = meta_line["controller"]
-        raise RecordError(path, line, _value_column(lines[line - 1]),
-                          f"controller '{meta['controller']}' is not supported: only the paper's 'pid'")
+        declared = _controller_file(path, lines, meta, meta_line)
+        for key in (*PID_DEFAULTS, "tf", "anti_windup"):
+            if key in meta and key != "ts":
+                line = meta_line[key]
+                raise RecordError(path, line, 1, f"{key}: the controller is declared by the file "
+                                  f"'{meta['controller']}'; a PID setting here would contradict it")
+        params_pid.update(kp=math.nan, ki=math.nan, kd=math.nan, u_min=declared.controller.u_min,
+                          u_max=declared.controller.u_max)
+        if "ts" in meta and abs(params_pid["ts"] - declared.controller.ts) > 1e-9 * declared.controller.ts:
+            line = meta_line["ts"]
+            raise RecordError(path, line, _value_column(lines[line - 1]), f"ts {params_pid['ts']} disagrees with "
+                              f"the sample time {declared.controller.ts} of controller '{meta['controller']}'")
+        params_pid["ts"] = declared.controller.ts
     if params_pid["ts"] <= 0:
         line = meta_line["ts"]
         raise RecordError(path, line, _value_column(lines[line - 1]), f"ts must be > 0, got {params_pid['ts']}")
@@ -318,11 +348,11 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES, plausibilit
                               f"(previous row has {t[bad[0]]})")
         step = float(np.median(dt))
         tol = max(1e-9, 1e-3 * ts, 0.5 * 10.0 ** -_decimals(rows, tcol))
-        if "ts" in meta and abs(step - ts) > tol:
-            ln = meta_line["ts"]
+        if ("ts" in meta or declared is not None) and abs(step - ts) > tol:
+            ln = meta_line["ts" if "ts" in meta else "controller"]
             raise RecordError(path, ln, _value_column(lines[ln - 1]),
                               f"ts {ts} disagrees with the time column, which steps by {step:.6g} s")
-        if "ts" not in meta:
+        if "ts" not in meta and declared is None:
             ts = params_pid["ts"] = step
         expected = t[0] + np.arange(len(t)) * ts
         off = np.nonzero(np.abs(t - expected) > tol)[0]
@@ -337,7 +367,8 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES, plausibilit
     extra = {name: _extra_column(rows, header.index(name)) for name in extra_names}
     rec = Record(str(path), t, data[:, 1], data[:, 2], data[:, 3], ts, params_pid["kp"], params_pid["ki"],
                  params_pid["kd"], params_pid["u_min"], params_pid["u_max"], meta, extra, tf=tf,
-                 anti_windup=anti_windup)
+                 anti_windup=anti_windup, controller=None if declared is None else declared.controller,
+                 controller_file=None if declared is None else str(declared.path))
     if plausibility != "off":
         for name, fraction, message in plausibility_findings(rec, params):
             if plausibility == "refuse" and (name == "constant" or fraction > REFUSE.get(name, 1.0)):

@@ -16,6 +16,7 @@ import numpy as np
 from . import fast, formulas
 from .loop import settled_start, simulate
 from .params import PlantParams, as_params, get_params
+from .controllers import Controller
 from .pid import PID
 from .record import Record
 
@@ -26,9 +27,10 @@ def baseline_params() -> dict[str, float]:
     return get_params("baseline").to_start_values()
 
 
-def record_controller(rec: Record) -> PID:
-    """The controller a record declares (its metadata; the paper's PID where it is silent)."""
-    return PID(**rec.pid_kwargs())
+def record_controller(rec: Record) -> Controller:
+    """The controller a record declares: the controller file its metadata names, or the PID of its
+    metadata (the paper's where it is silent)."""
+    return rec.controller if rec.controller is not None else PID(**rec.pid_kwargs())
 
 
 def _settled_at_first_reading(rec: Record, params: Mapping[str, float]) -> tuple[PlantParams, float]:

@@ -198,8 +198,10 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
                   f"{100 * v.predictable_share['before']:.1f} %).", ""]
     if d.warnings:
         lines += ["**Warnings**:", ""] + [f"- {w}" for w in d.warnings] + [""]
-    lines += [f"Record: {rec.n} samples at ts = {rec.ts} s ({rec.duration:.2f} s); PID kp = {rec.kp}, "
-              f"ki = {rec.ki}, kd = {rec.kd}, output limits [{rec.u_min}, {rec.u_max}] MU.", ""]
+    ctrl = (f"controller {type(rec.controller).__name__} declared by `{rec.controller_file}`"
+            if rec.controller is not None else f"PID kp = {rec.kp}, ki = {rec.ki}, kd = {rec.kd}")
+    lines += [f"Record: {rec.n} samples at ts = {rec.ts} s ({rec.duration:.2f} s); {ctrl}, "
+              f"output limits [{rec.u_min}, {rec.u_max}] MU.", ""]
     lines += ["## Result", ""]
     if d.selected:
         lines.append("Effects the baseline lacks, in the order they were found: "

@@ -114,9 +114,34 @@ def analyse_residual(rec: Record, sim: Mapping[str, np.ndarray]) -> dict:
 def noise_floor(rec: Record) -> dict[str, float]:
     """What sensor noise alone leaves, estimated from the record itself: the white part of the
     reading from its second differences (the ball moves too slowly to show in them at 1 kHz),
-    and the controller's response to that noise (the PID of Eq. 24 as an FIR on white noise)."""
+    and the controller's response to that noise (the PID of Eq. 24 as an FIR on white noise; a
+    declared controller file's controller, run on a seeded white noise of that level)."""
     d2 = np.diff(rec.y, 2)
     sigma = float(np.std(d2) / math.sqrt(6.0))
-    b0 = rec.kp + rec.ki * rec.ts + rec.kd / rec.ts
-    b1 = -rec.kd / rec.ts
-    return {"sigma_y": sigma, "rms_u_from_sensor_noise": sigma * math.hypot(b0, b1)}
+    if rec.controller is None:
+        b0 = rec.kp + rec.ki * rec.ts + rec.kd / rec.ts
+        b1 = -rec.kd / rec.ts
+        return {"sigma_y": sigma, "rms_u_from_sensor_noise": sigma * math.hypot(b0, b1)}
+    return {"sigma_y": sigma, "rms_u_from_sensor_noise": _controller_noise_gain(rec) * sigma}
+
+
+def _controller_noise_gain(rec: Record, n: int = 4000) -> float:
+    """RMS change of the declared controller's output per unit RMS of white noise on its reading,
+    around the record's mean operating point (a small noise, so the limits do not act)."""
+    from .. import fast, formulas
+    from ..controllers import needs_current
+    from ..params import get_params
+    from ..replay import record_controller
+
+    c = record_controller(rec)
+    p = get_params("baseline")
+    y0 = float(np.mean(rec.y))
+    x0 = formulas.position(p, y0)
+    op = formulas.point(p, x0)
+    level = 1e-5
+    noise = level * np.random.default_rng(0).standard_normal(n)
+    w = np.full(n, y0)
+    cur = np.full(n, op.i) if needs_current(c) else None
+    u0 = fast.control(c, w, w, cur, op.u, (x0, 0.0, op.i))
+    u1 = fast.control(c, w, w + noise, cur, op.u, (x0, 0.0, op.i))
+    return float(np.std(u1 - u0) / level)
