@@ -85,28 +85,35 @@ def test_errors_write_nothing(tmp_path):
     assert r.returncode == 2 and list(tmp_path.iterdir()) == []
 
 
-def test_positions_take_mm_or_a_unit_and_linearize_writes_nothing_unasked(tmp_path):
-    outs = []
-    for pos in ("3.2", "3.2mm", "0.0032m", "3200um"):
-        r = subprocess.run([sys.executable, "-m", "maglev_cosim", "linearize", "--position", pos],
-                           capture_output=True, text=True, cwd=tmp_path, timeout=120)
-        assert r.returncode == 0, r.stderr
-        outs.append(r.stdout)
+def test_positions_take_mm_or_a_unit_and_linearize_writes_nothing_unasked(tmp_path, monkeypatch, capsys):
+    from maglev_cosim.cli import main
+
+    r = subprocess.run([sys.executable, "-m", "maglev_cosim", "linearize", "--position", "3.2"],
+                       capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 0, r.stderr
+    outs = [r.stdout]
+    for pos in ("3.2mm", "0.0032m", "3200um"):   # the same parser in-process: one interpreter start is enough
+        monkeypatch.chdir(tmp_path)
+        assert main(["linearize", "--position", pos]) == 0
+        outs.append(capsys.readouterr().out)
     assert len(set(outs)) == 1 and "x = 3.2 mm" in outs[0] and "bandwidth_hz 29.6" in outs[0]
     assert list(tmp_path.iterdir()) == []           # no ./linearize/ unless --plots is given
 
 
-def test_help_version_and_module_entry_point():
+def test_help_version_and_module_entry_point(capsys):
     r = subprocess.run([sys.executable, "-m", "maglev_cosim", "--version"], capture_output=True, text=True, timeout=60)
     from maglev_cosim import __version__
 
     assert r.returncode == 0 and r.stdout.strip() == f"maglev-cosim {__version__}"
     r = subprocess.run([sys.executable, "-m", "maglev_cosim", "--help"], capture_output=True, text=True, timeout=60)
     assert "examples:" in r.stdout and "periodic_disturbance: A_d [V], f_d [Hz], phi_d [rad]" in r.stdout
+    from maglev_cosim.cli import main
+
     for command in ("step", "linearize", "bench", "diagnose", "identify", "synth", "demo"):
-        r = subprocess.run([sys.executable, "-m", "maglev_cosim", command, "--help"], capture_output=True, text=True,
-                           timeout=60)
-        options = [ln for ln in r.stdout.splitlines() if ln.strip().startswith("--")]
+        with pytest.raises(SystemExit) as exit_:   # in-process: the entry point was started above
+            main([command, "--help"])
+        assert exit_.value.code == 0
+        options = [ln for ln in capsys.readouterr().out.splitlines() if ln.strip().startswith("--")]
         assert options, command
         # every option has a help text: a line with the option and its description, or a wrapped one
         for ln in options:

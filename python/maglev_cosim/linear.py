@@ -105,4 +105,4 @@ def transfer_function(p: PlantParams, x: float | None = None, i: float | None = 
     num = np.asarray(tf.num[0][0], float)
     num = np.where(np.abs(num) < 1e-12 * np.max(np.abs(num)), 0.0, num)
     num = np.trim_zeros(num, "f")
-    return control.tf(num, np.asarray(tf.den[0][0], float))
+    return control.tf(num, np.asarray(tf.den[0][0], float), inputs=["u"], outputs=["y"], name="H")
