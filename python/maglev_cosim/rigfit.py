@@ -594,8 +594,8 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
             reasons.append(f"effects found: {', '.join(ef['selected'])} ("
                            + ", ".join(f"{k} = {v:.4g}" for k, v in ef["parameters"].items()) + ")")
         if last > len(ef["selected"]):   # the last round selected nothing
-            reasons.append(("the remaining effects of the catalogue" if ef["selected"] else "no effect of the catalogue")
-                           + f" explain too little on the held-out blocks: gains of the 20 ms prediction cost "
+            reasons.append(("none of the remaining effects" if ef["selected"] else "no effect of the catalogue")
+                           + f" explains enough on the held-out blocks: gains of the 20 ms prediction cost "
                            f"{tried} (at least {100 * MIN_EFFECT_GAIN:.0f} % needed)")
     for e in result["records"]:
         fb = e["force_balance"]
