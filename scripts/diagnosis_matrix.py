@@ -54,6 +54,7 @@ CASES: list[tuple[str, dict]] = [
     ("friction F_c=2mN", {"effects": {"coulomb_friction": {"F_c": 2e-3}}}),
     ("dead zone u_dz=0.5V", {"effects": {"amplifier_dead_zone": {"u_dz": 0.5}}}),
     ("OUTSIDE slew 20A/s", {"effects": {"slew_rate": {"di_max": 20.0}}}),
+    ("OUTSIDE ripple 20mV/0.5mm", {"effects": {"sensor_ripple": {"A_r": 0.02, "lambda_r": 5e-4}}}),
     ("square: delay 2ms", {"effects": {"delay": {"T_d": 0.002}}, "reference": "square"}),
     ("sine: pickup 60Hz", {"effects": {"periodic_disturbance": {"A_d": 0.004, "f_d": 60.0, "phi_d": -2.0}},
                            "reference": "sine"}),

@@ -90,6 +90,8 @@ def test_effect_found_recovered_and_residual_at_noise(name, tmp_path_factory):
 OUTSIDE = {
     # an amplifier whose current slews at 20 A/s at most: an effect the catalogue lacks (rig.py)
     "slew_rate": ({"slew_rate": {"di_max": 20.0}}, None),
+    # a sensor whose reading wiggles with the position (20 mV, period 0.5 mm; rig.py)
+    "sensor_ripple": ({"sensor_ripple": {"A_r": 0.02, "lambda_r": 5e-4}}, None),
 }
 
 
@@ -106,6 +108,14 @@ def test_effect_outside_the_catalogue_is_reported_honestly(name, tmp_path_factor
     if d.selected:
         assert all(c["accepted"] for c in d.candidates if c.get("selected"))
     assert d.unexplained["note"] or d.selected or d.after["rms_u"] < 1.2 * d.noise["rms_u_from_sensor_noise"]
+
+
+def test_a_sensor_ripple_outside_the_catalogue_ends_unexplained_at_the_sensor(tmp_path_factory):
+    """The fifth, undeclared effect (docs: rig.py's sensor_ripple): no catalogue effect is credited
+    with it, and the verdict names the sensor as where the residual enters."""
+    rec, d, *_ = run_case("sensor_ripple", tmp_path_factory)
+    j = d.to_json()
+    assert d.selected == [] and j["verdict"] == "unexplained: sensor", (d.selected, j["verdict"], j["location_evidence"])
 
 
 def _kstep_rms(rec, d) -> dict[str, float]:

@@ -25,8 +25,9 @@ Effects the catalogue also has, written here in the emulator's own way: ``force_
 amplifier's input is within ``±u_dz`` volts).
 
 An effect the catalogue deliberately lacks, for honesty tests: ``slew_rate``, an amplifier whose
-current cannot change faster than ``di_max`` [A/s]. It acts at the actuator; the diagnosis should
-end ``unexplained: actuator`` on it.
+current cannot change faster than ``di_max`` [A/s], at the actuator; and ``sensor_ripple``, a
+spatially periodic sensor error ``A_r·sin(2π·x/lambda_r)`` [V] (an optical sensor's fringes), at the
+sensor: no catalogue effect has a reading that wiggles with the position.
 """
 
 from __future__ import annotations
@@ -70,6 +71,8 @@ class RigConfig:
     F_c: float = 0.0            # coulomb_friction [N]
     u_dz: float = 0.0           # amplifier_dead_zone [V]
     di_max: float = 0.0         # slew_rate [A/s] (outside the catalogue; 0 = off)
+    A_r: float = 0.0            # sensor_ripple [V] (outside the catalogue; 0 = off)
+    lambda_r: float = 5e-4      # its spatial period [m]
     sigma_y: float = 2e-4       # [MU] sensor noise
     sigma_F_rel: float = 3e-3   # random force RMS / weight
     tau_F_noise: float = 0.02   # [s] low-pass of the random force
@@ -239,6 +242,8 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     for k in range(n):
         t = k * ts
         yv = c.k_x * x + c.y_0 + c.k_x2 * x * (x - c.x_cal) + c.A_d * math.sin(two_pi_f * t + c.phi_d)
+        if c.A_r:   # a spatially periodic error of the sensor (an optical sensor's fringes)
+            yv += c.A_r * math.sin(2 * math.pi * x / c.lambda_r)
         y = c.k_AD * yv + c.y_MU0 + noise_y[k]
         y = min(max(y, -1.0), 1.0)
         if c.quantise:

@@ -27,6 +27,7 @@ EFFECTS: dict[str, tuple[str, ...]] = {
     "coulomb_friction": ("F_c",),
     "amplifier_dead_zone": ("u_dz",),
     "slew_rate": ("di_max",),
+    "sensor_ripple": ("A_r", "lambda_r"),
 }
 
 PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD", "y_MU0")
