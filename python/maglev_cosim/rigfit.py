@@ -573,10 +573,12 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
             figs_after.append(after)
         result["records"].append(entry)
     for m, rs in held:
+        fb = force_balance(rig, m, params)
         for r in rs:
             say(f"validation figures of {r.label}")
             result["validation"].append({"file": str(m.path), "label": r.label, "before": figures(rig, r, rig.params),
-                                         "after": figures(rig, r, params)})
+                                         "after": figures(rig, r, params), "warnings": m.warnings,
+                                         "force_balance_calibrated": fb})
     verdict, reasons = conclude(rig, figs_after, info, cal)
     held_skill = [v["after"]["position"]["20 ms"]["skill_vs_stays_put"] for v in result["validation"]]
     held_skill = [k for k in held_skill if np.isfinite(k)]
@@ -585,6 +587,23 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
                        f"20 ms ahead has median skill {np.median(held_skill):+.2f} against 'stays put' ({MIN_SKILL:g} "
                        f"needed; best {max(held_skill):+.2f}, worst {min(held_skill):+.2f}): the verdict holds for the "
                        "calibration records only")
+        own = [fb["median"] for fb in (force_balance(rig, m, params) for m, _ in train) if fb]
+        for v in result["validation"]:
+            k = v["after"]["position"]["20 ms"]["skill_vs_stays_put"]
+            if not (np.isfinite(k) and k < MIN_SKILL):
+                continue
+            why = []
+            fb = v["force_balance_calibrated"]
+            if fb and own and not min(own) - 0.02 <= fb["median"] <= max(own) + 0.02:
+                why.append(f"the calibrated force law carries {100 * fb['median']:.0f} % of the weight here against "
+                           f"{100 * min(own):.0f}-{100 * max(own):.0f} % on the calibration records (the force gain "
+                           "differs between runs)")
+            cur = v["after"]["current"]
+            if cur and cur["from_actuator"] < MIN_CURRENT_FIT:
+                why.append(f"its coil current from the actuator signal fits only {cur['from_actuator']:.1f} %")
+            why += [w for w in v["warnings"] if "Kalman" in w]
+            if why:
+                reasons.append(f"{v['label']} (skill {k:+.2f}): " + "; ".join(why))
     ef = result.get("effects")
     if ef:
         last = max(c["round"] for c in ef["candidates"])
