@@ -192,6 +192,12 @@ def test_calibrate_on_two_inteco_records_and_validate_on_a_third(tmp_path):
     assert set(seg["position"]) == {"5 ms", "20 ms", "50 ms"} and seg["current"]["from_actuator"] > 80
     assert set(d["spread"]) == {"k_e", "z_e", "R_c", "k_DA", "u_0"} and d["calibration"]["cost_after"] < d["calibration"]["cost_before"]
     assert d["verdict"] in ("explained", "unexplained: mechanics", "unexplained: actuator")
+    # the catalogue's effects were tried on held-out blocks, each with its gain per signal
+    ef = d["effects"]
+    assert {c["effect"] for c in ef["candidates"] if c["round"] == 1} == {"force_lag", "delay", "damping"}
+    assert all(set(c["held_out_gains"]) >= {"y", "i"} for c in ef["candidates"])
+    assert set(ef["parameters"]) <= set(d["parameters"])
+    assert 0.5 < d["validation"][0]["force_balance_calibrated"]["median"] < 1.5
     assert (tmp_path / "frequency_response.png").stat().st_size > 10000
     text = (tmp_path / "report.md").read_text()
     assert "Validation on records not used" in text and f"**Verdict: {d['verdict']}**" in text
