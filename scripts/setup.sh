@@ -15,7 +15,7 @@ pip_quiet() {  # pip, quiet, without the warnings about unreachable extra packag
   return "${PIPESTATUS[0]}"
 }
 sources_hash() {
-  find pyproject.toml CMakeLists.txt modelDescription.xml c python -type f \
+  find pyproject.toml CMakeLists.txt modelDescription.xml modelDescription3.xml c python -type f \
        \( -name '*.py' -o -name '*.c' -o -name '*.h' -o -name '*.toml' -o -name '*.txt' -o -name '*.xml' \) \
        -not -path '*/__pycache__/*' -print0 | LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1
 }
