@@ -153,7 +153,12 @@ static void plant_reset(Fmu *f) {
  * "name value" per line: they replace the C defaults, so that the FMU uses the start values its
  * modelDescription.xml states. No file (the CE152 FMU): the defaults. Returns 0, or -1 with msg. */
 #define START_VALUES_FILE "start_values.txt"
-static int resource_path(const char *uri, char *out, size_t len) {
+/* A calibrated or rig FMU is a model of its own with a GUID of its own, issued by the packager
+ * (maglev_cosim.report.calibrated_fmu) and stated in resources/guid.txt: with that file the binary
+ * accepts exactly that GUID, without it exactly MAGLEV_GUID, so a description and a binary or
+ * resources that do not belong together are still refused. */
+#define GUID_FILE "guid.txt"
+static int resource_path(const char *uri, const char *file, char *out, size_t len) {
     const char *p;
     if (strncmp(uri, "file:///", 8) == 0) p = uri + 7;       /* file:///path */
     else if (strncmp(uri, "file://localhost/", 17) == 0) p = uri + 16;
@@ -171,15 +176,36 @@ static int resource_path(const char *uri, char *out, size_t len) {
     }
     if (*p) return -1;
     while (n > 0 && out[n - 1] == '/') n--;
-    if (n + 1 + sizeof START_VALUES_FILE > len) return -1;
+    size_t fl = strlen(file);
+    if (n + 2 + fl > len) return -1;
     out[n] = '/';
-    memcpy(out + n + 1, START_VALUES_FILE, sizeof START_VALUES_FILE);
+    memcpy(out + n + 1, file, fl + 1);
+    return 0;
+}
+
+/* The GUID this FMU accepts (above): 0 with guid set, or -1 with msg when resources/guid.txt is
+ * there but holds no GUID. */
+static int accepted_guid(const char *uri, char *guid, size_t glen, char *msg, size_t len) {
+    char path[4096], line[128];
+    snprintf(guid, glen, "%s", MAGLEV_GUID);
+    if (!uri || resource_path(uri, GUID_FILE, path, sizeof path)) return 0;
+    FILE *fp = fopen(path, "r");
+    if (!fp) return 0;
+    int ok = fgets(line, sizeof line, fp) != NULL;
+    fclose(fp);
+    size_t n = ok ? strcspn(line, "\r\n") : 0;
+    line[n] = 0;
+    if (n < 3 || n + 1 > glen || line[0] != '{' || line[n - 1] != '}') {
+        snprintf(msg, len, "resources/%s: expected one GUID in braces on its first line", GUID_FILE);
+        return -1;
+    }
+    memcpy(guid, line, n + 1);
     return 0;
 }
 
 static int load_start_values(MaglevPlant *m, const char *uri, char *msg, size_t len) {
     char path[4096];
-    if (!uri || resource_path(uri, path, sizeof path)) return 0;
+    if (!uri || resource_path(uri, START_VALUES_FILE, path, sizeof path)) return 0;
     FILE *fp = fopen(path, "r");
     if (!fp) return 0;
     char line[512];
@@ -243,8 +269,14 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         emit(functions, nm, "fmi2Instantiate: this FMU supports co-simulation only (fmuType = %d)", (int)fmuType);
         return NULL;
     }
-    if (!fmuGUID || strcmp(fmuGUID, MAGLEV_GUID) != 0) {
-        emit(functions, nm, "fmi2Instantiate: GUID %s does not match %s", fmuGUID ? fmuGUID : "(null)", MAGLEV_GUID);
+    char guid[80], msg[MAGLEV_MSG_LEN];
+    if (accepted_guid(fmuResourceLocation, guid, sizeof guid, msg, sizeof msg)) {
+        emit(functions, nm, "fmi2Instantiate: %s", msg);
+        return NULL;
+    }
+    if (!fmuGUID || strcmp(fmuGUID, guid) != 0) {
+        emit(functions, nm, "fmi2Instantiate: GUID %s does not match %s%s", fmuGUID ? fmuGUID : "(null)", guid,
+             strcmp(guid, MAGLEV_GUID) ? " (issued in resources/" GUID_FILE ")" : "");
         return NULL;
     }
     Fmu *f = functions->allocateMemory(1, sizeof *f);
@@ -260,14 +292,13 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     f->alloc.release = fmu_release;
     f->alloc.env = f;
     maglev_defaults(&f->plant);
-    char msg[MAGLEV_MSG_LEN];
     if (load_start_values(&f->plant, fmuResourceLocation, msg, sizeof msg)) {
         emit(functions, nm, "fmi2Instantiate: %s", msg);
         functions->freeMemory(f);
         return NULL;
     }
     f->state = Instantiated;
-    logmsg(f, fmi2OK, "logCalls", "fmi2Instantiate: %s", MAGLEV_GUID);
+    logmsg(f, fmi2OK, "logCalls", "fmi2Instantiate: %s", guid);
     return f;
 }
 
