@@ -22,7 +22,8 @@ then fails until the constant is updated to match, on purpose.
 ``tests/test_model_description.py`` fails when the committed files differ from what the binary
 says. Regenerate, from the repository root after ``scripts/setup.sh``, with
 ``python -m maglev_cosim.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``
-and ``... --fmi 3 build/fmu/binaries/linux64/maglev.so modelDescription3.xml``.
+and ``... --fmi 3 build/fmu/binaries/linux64/maglev.so modelDescription3.xml``; the controller
+FMU's with ``... --pid build/maglev_pid.so modelDescription_pid.xml``.
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ UNITS: dict[str, UnitInfo] = {
     "N.m2/A2": UnitInfo({"kg": 1, "m": 3, "s": -2, "A": -2}, "CoilConstant"),
     "N.s/m": UnitInfo({"kg": 1, "s": -1}, "DampingCoefficient"),
     "Hz": UnitInfo({"s": -1}, "Frequency"),
+    "1/s": UnitInfo({"s": -1}, "Rate"),         # the PID's integral gain
     "rad": UnitInfo({"rad": 1}, "Angle", ("deg", 180 / math.pi)),
     "N/A2": UnitInfo({"kg": 1, "m": 1, "s": -2, "A": -2}, "ForceCurrentGain"),
     "Ohm": UnitInfo({"kg": 1, "m": 2, "s": -3, "A": -2}, "Resistance"),
@@ -128,6 +130,32 @@ def plant_identity(fmi_version: int = 2) -> Identity:
         # i and F follow the input at once when T_a = 0 (Eq. 5): they may depend on u.
         feedthrough=frozenset({"i", "F"}),
     )
+
+
+#: The controller FMU (c/maglev_pid_fmu.[ch], build/maglev_pid.fmu).
+PID_GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0101}"
+PID_MODEL_IDENTIFIER = "maglev_pid"
+PID_SOURCE_FILES = ("maglev_pid_fmu.c", "maglev_replay.c", "maglev_plant.c")
+
+
+def pid_identity() -> Identity:
+    """The controller FMU's identity (FMI 2.0). Its output u changes only in fmi2DoStep, when the
+    controller samples its inputs: no output depends on an input at the same instant."""
+    return Identity(
+        model_name="CE152 discrete PID with step reference",
+        model_identifier=PID_MODEL_IDENTIFIER,
+        token=PID_GUID,
+        description="The paper's discrete PID (Eq. 24/25) of the CE152 magnetic levitation loop, with output "
+                    "limits, derivative filter, anti-windup and a step reference w0 -> w1 at t_step (plus the input "
+                    "w_in); samples y at t0 + k*ts in fmi2DoStep and holds u until the next sample",
+        source_files=PID_SOURCE_FILES,
+    )
+
+
+def read_pid_table(library: str | Path, header: str | Path | None = None) -> list[Variable]:
+    """The controller FMU's variable table, out of its compiled binary."""
+    return read_table(library, header=header or c_dir() / "maglev_pid_fmu.h", table="maglev_pid_variables",
+                      enum="MaglevPidVR", prefix="PID_", count="MAGLEV_PID_NVARS")
 
 
 def read_table(library: str | Path, *, header: str | Path | None = None, table: str = "maglev_variables",
@@ -348,17 +376,21 @@ def _date_from_environment() -> str:
 def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     fmi_version = 2
+    pid = bool(args) and args[0] == "--pid"
+    args = args[1:] if pid else args
     if len(args) >= 2 and args[0] == "--fmi":
         fmi_version = int(args[1])
         args = args[2:]
-    if len(args) not in (1, 2) or fmi_version not in (2, 3):
+    if len(args) not in (1, 2) or fmi_version not in (2, 3) or (pid and fmi_version != 2):
         print("usage: python -m maglev_cosim.model_description [--fmi 2|3] PATH/TO/maglev.so [OUT.xml]\n"
+              "       python -m maglev_cosim.model_description --pid PATH/TO/maglev_pid.so [OUT.xml]\n"
               "writes OUT.xml (default: modelDescription.xml in the current folder)", file=sys.stderr)
         return 2
     target = Path(args[1] if len(args) == 2 else "modelDescription.xml")
-    ident = plant_identity(fmi_version)
+    ident = pid_identity() if pid else plant_identity(fmi_version)
     ident = Identity(**{**ident.__dict__, "generation_date": _date_from_environment()})
-    target.write_text(generate(read_table(args[0]), ident, fmi_version))
+    table = read_pid_table(args[0]) if pid else read_table(args[0])
+    target.write_text(generate(table, ident, fmi_version))
     print(f"wrote {target}")
     return 0
 
