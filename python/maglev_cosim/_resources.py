@@ -3,6 +3,7 @@
 ``pip install .`` (scikit-build-core running CMakeLists.txt) puts them into ``maglev_cosim/_data/``:
 
 - ``maglev.fmu``: the plant FMU (``binaries/<platform>/maglev.so`` and ``sources/`` inside);
+- ``maglev_pid.fmu``: the controller FMU (``c/maglev_pid_fmu.c``);
 - ``modelDescription.xml``: the FMU's model description;
 - ``c/``: the C sources and headers (``maglev_plant.[ch]``, ``maglev_fmu.c``, ``maglev_replay.[ch]``);
 - ``libmaglev_fast.so`` (``.dylib``, ``maglev_fast.dll``): plant + closed-loop replay, the fast path.
@@ -43,6 +44,11 @@ def fmu_path() -> Path:
     if env:
         return _need(Path(env), "the FMU named by $MAGLEV_FMU")
     return _need(DATA / "maglev.fmu", "the installed FMU")
+
+
+def pid_fmu_path() -> Path:
+    """The controller FMU (the paper's PID with a step reference): ``maglev_cosim/_data/maglev_pid.fmu``."""
+    return _need(DATA / "maglev_pid.fmu", "the installed controller FMU")
 
 
 def model_description_path() -> Path:
