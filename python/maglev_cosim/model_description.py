@@ -42,8 +42,7 @@ from ._resources import c_dir
 
 GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 MODEL_IDENTIFIER = "maglev"
-SOURCE_FILES = ("maglev_fmu.c", "maglev_plant.c")
-SOURCE_FILES_3 = ("maglev_fmi3.c", "maglev_fmi_common.c", "maglev_plant.c")
+SOURCE_FILES = ("maglev_fmu.c", "maglev_fmi_common.c", "maglev_plant.c")
 #: generationDateAndTime of the committed descriptions (see the module docstring).
 GENERATION_DATE = "2026-11-25T00:00:00Z"
 
