@@ -226,6 +226,10 @@ int mf_reset(MfInstance *f) {
 
 /* ---- values ---- */
 
+/* The FMI 3.0 independent variable; never a match in a 2.0 instance (whose time_vr is MF_NO_TIME_VR, which
+ * an importer may well pass as a value reference). */
+static int is_time(const MfInstance *f, unsigned int vr) { return f->time_vr != MF_NO_TIME_VR && vr == f->time_vr; }
+
 static int check_vrs(MfInstance *f, const char *fn, const unsigned int vr[], size_t nvr, const void *value) {
     if (nvr == 0) return 1;
     if (!vr || !value) {
@@ -233,7 +237,7 @@ static int check_vrs(MfInstance *f, const char *fn, const unsigned int vr[], siz
         return 0;
     }
     for (size_t k = 0; k < nvr; k++)
-        if (vr[k] >= MAGLEV_NVARS && vr[k] != f->time_vr) {
+        if (vr[k] >= MAGLEV_NVARS && !is_time(f, vr[k])) {
             mf_error(f, "%s: unknown value reference %u", fn, (unsigned)vr[k]);
             return 0;
         }
@@ -249,7 +253,7 @@ int mf_get_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t n
     char msg[MAGLEV_MSG_LEN];
     if (f->state == MF_INITIALIZATION_MODE) {
         for (size_t k = 0; k < nvr; k++) {
-            if (vr[k] == f->time_vr || maglev_variables[vr[k]].causality != MAGLEV_OUTPUT) continue;
+            if (is_time(f, vr[k]) || maglev_variables[vr[k]].causality != MAGLEV_OUTPUT) continue;
             if (maglev_preview(&f->plant, f->start_time, &view, msg, sizeof msg))
                 return mf_error(f, "%s: output %s is undefined until the parameters agree: %s", fn,
                                 maglev_variables[vr[k]].name, msg);
@@ -258,7 +262,7 @@ int mf_get_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t n
         }
     }
     for (size_t k = 0; k < nvr; k++) {
-        if (vr[k] == f->time_vr) {
+        if (is_time(f, vr[k])) {
             value[k] = f->plant.time;
             continue;
         }
@@ -274,7 +278,7 @@ int mf_set_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t n
     if (!check_vrs(f, fn, vr, nvr, value)) return MF_ERROR;
     /* validate everything first, so a rejected call changes nothing */
     for (size_t k = 0; k < nvr; k++) {
-        if (vr[k] == f->time_vr)
+        if (is_time(f, vr[k]))
             return mf_error(f, "%s: variable time is the independent variable and cannot be set", fn);
         const MaglevVariable *var = &maglev_variables[vr[k]];
         if (var->causality == MAGLEV_OUTPUT)

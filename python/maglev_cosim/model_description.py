@@ -312,7 +312,8 @@ def _generate3(variables: list[Variable], ident: Identity) -> str:
         '    canReturnEarlyAfterIntermediateUpdate="false"',
         '    maxOutputDerivativeOrder="0"/>',
     ]
-    out += _units(variables) + _types(variables, 3) + _LOG_CATEGORIES + _default_experiment(ident)
+    with_time = [*variables, Variable(vr_time, "time", "independent", 0.0, "s", "Simulation time")]  # its unit too
+    out += _units(with_time) + _types(with_time, 3) + _LOG_CATEGORIES + _default_experiment(ident)
     out += ['  <ModelVariables>',
             f'    <Float64 name="time" valueReference="{vr_time}" causality="independent" '
             'variability="continuous" description="Simulation time" declaredType="Time" unit="s"/>']

@@ -166,6 +166,8 @@ static void test_bad_values(void) {
     fmi3ValueReference unknown = 9999, tvr = VR_TIME, outvr = VR_y;
     double one = 0.5;
     CHECK(fmi3SetFloat64(c, &unknown, 1, &one, 1) == fmi3Error && logged("9999"), "unknown vr: %s", last_log);
+    fmi3ValueReference all_ones = 0xffffffffu;
+    CHECK(fmi3SetFloat64(c, &all_ones, 1, &one, 1) == fmi3Error, "vr 2^32-1 accepted");
     CHECK(fmi3SetFloat64(c, &tvr, 1, &one, 1) == fmi3Error && logged("time"), "time set: %s", last_log);
     CHECK(fmi3SetFloat64(c, &outvr, 1, &one, 1) == fmi3Error && logged("output"), "output set: %s", last_log);
     CHECK(fmi3SetFloat64(c, NULL, 1, &one, 1) == fmi3Error, "NULL vr");
