@@ -43,8 +43,7 @@ from ._resources import c_dir
 
 GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 MODEL_IDENTIFIER = "maglev"
-SOURCE_FILES = ("maglev_fmu.c", "maglev_plant.c")
-SOURCE_FILES_3 = ("maglev_fmi3.c", "maglev_fmi_common.c", "maglev_plant.c")
+SOURCE_FILES = ("maglev_fmu.c", "maglev_fmi_common.c", "maglev_plant.c")
 #: generationDateAndTime of the committed descriptions (see the module docstring).
 GENERATION_DATE = "2026-11-25T00:00:00Z"
 
@@ -341,7 +340,8 @@ def _generate3(variables: list[Variable], ident: Identity) -> str:
         '    canReturnEarlyAfterIntermediateUpdate="false"',
         '    maxOutputDerivativeOrder="0"/>',
     ]
-    out += _units(variables) + _types(variables, 3) + _LOG_CATEGORIES + _default_experiment(ident)
+    with_time = [*variables, Variable(vr_time, "time", "independent", 0.0, "s", "Simulation time")]  # its unit too
+    out += _units(with_time) + _types(with_time, 3) + _LOG_CATEGORIES + _default_experiment(ident)
     out += ['  <ModelVariables>',
             f'    <Float64 name="time" valueReference="{vr_time}" causality="independent" '
             'variability="continuous" description="Simulation time" declaredType="Time" unit="s"/>']

@@ -132,6 +132,8 @@ static void test_bad_values(void) {
     CHECK(fmi2SetReal(c, &outvr, 1, &one) == fmi2Error && logged("output"), "output set: %s", last_log);
     fmi2ValueReference unknown = 9999;
     CHECK(fmi2SetReal(c, &unknown, 1, &one) == fmi2Error && logged("9999"), "unknown vr: %s", last_log);
+    fmi2ValueReference all_ones = 0xffffffffu; /* what the FMI 3.0 glue's "no time variable" marker is */
+    CHECK(fmi2SetReal(c, &all_ones, 1, &one) == fmi2Error && logged("4294967295"), "vr 2^32-1: %s", last_log);
     /* relations between parameters are checked when initialisation ends */
     fmi2ValueReference xmax = VR_x_max;
     double too_high = 9e-3;
