@@ -94,18 +94,31 @@ static void sample(const MaglevPlant *m, size_t k, double *y, double *x, double 
     if (i) i[k] = maglev_get(m, VR_i);
 }
 
-typedef struct { double integral, e_prev, d_prev; } PidState;
+int maglev_pid_check(const MaglevPid *pid, char *msg, size_t len) {
+    const char *bad = NULL;
+    if (!pid) bad = "the PID settings are missing";
+    else if (!(pid->ts > 0) || !isfinite(pid->ts)) bad = "ts must be > 0 and finite";
+    else if (!isfinite(pid->kp) || !isfinite(pid->ki) || !isfinite(pid->kd)) bad = "kp, ki and kd must be finite";
+    else if (!isfinite(pid->u_min) || !isfinite(pid->u_max) || !(pid->u_min < pid->u_max))
+        bad = "u_min < u_max must hold, both finite";
+    else if (!(pid->tf >= 0) || !isfinite(pid->tf)) bad = "tf must be >= 0 and finite";
+    else if (pid->anti_windup < 0 || pid->anti_windup > 3) bad = "anti_windup must be 0, 1, 2 or 3";
+    else if (pid->anti_windup == 3 && !(isfinite(pid->i_lo) && isfinite(pid->i_hi) && pid->i_lo < pid->i_hi))
+        bad = "the band needs i_lo < i_hi, both finite (anti_windup 3)";
+    else if (pid->anti_windup == 3 && !(pid->backoff > 0 && pid->backoff <= 1))
+        bad = "the band needs 0 < backoff <= 1 (anti_windup 3)";
+    if (!bad) return 0;
+    snprintf(msg, len, "PID: %s", bad);
+    return -1;
+}
 
 static int pid_valid(const MaglevPid *pid) {
-    return pid && pid->ts > 0 && isfinite(pid->ts) && isfinite(pid->kp) && isfinite(pid->ki) && isfinite(pid->kd) &&
-           isfinite(pid->u_min) && isfinite(pid->u_max) && pid->u_min < pid->u_max && pid->tf >= 0 &&
-           isfinite(pid->tf) && pid->anti_windup >= 0 && pid->anti_windup <= 3 &&
-           (pid->anti_windup != 3 || (isfinite(pid->i_lo) && isfinite(pid->i_hi) && pid->i_lo < pid->i_hi &&
-                                      pid->backoff > 0 && pid->backoff <= 1));
+    char msg[8];
+    return maglev_pid_check(pid, msg, sizeof msg) == 0;
 }
 
 /* One sample of the PID (maglev_replay.h), the one difference equation of the C side. */
-static double pid_step(const MaglevPid *pid, PidState *s, double w, double y) {
+double maglev_pid_step(const MaglevPid *pid, MaglevPidState *s, double w, double y) {
     double e = w - y;
     double integ = s->integral + pid->ki * pid->ts * e;
     if (pid->anti_windup == 3 && !(pid->i_lo < s->integral && s->integral < pid->i_hi)) {
@@ -127,7 +140,7 @@ static double pid_step(const MaglevPid *pid, PidState *s, double w, double y) {
 /* ---- the controllers (maglev_replay.h) ---- */
 
 typedef struct {
-    PidState outer, inner;
+    MaglevPidState outer, inner;
     double xh[3], q;
 } CtlState;
 
@@ -179,8 +192,8 @@ static void ctl_start(const MaglevController *c, CtlState *s, double u_hold, con
 }
 
 static double ctl_step(const MaglevController *c, CtlState *s, double w, double y, double i) {
-    if (c->kind == 0) return pid_step(&c->pid, &s->outer, w, y);
-    if (c->kind == 1) return pid_step(&c->inner, &s->inner, pid_step(&c->pid, &s->outer, w, y), i);
+    if (c->kind == 0) return maglev_pid_step(&c->pid, &s->outer, w, y);
+    if (c->kind == 1) return maglev_pid_step(&c->inner, &s->inner, maglev_pid_step(&c->pid, &s->outer, w, y), i);
     const double meas[2] = {y - c->y_eq, i - c->i_eq};
     double e[2];
     for (int r = 0; r < 2; r++) e[r] = meas[r] - (c->C[r][0] * s->xh[0] + c->C[r][1] * s->xh[1] + c->C[r][2] * s->xh[2]);

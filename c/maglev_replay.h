@@ -20,6 +20,18 @@ typedef struct {
     double i_lo, i_hi, backoff; /* the band (anti_windup 3): i_lo < i_hi, 0 < backoff <= 1 */
 } MaglevPid;
 
+/* The PID's memory between samples: integrator I[k-1], error e[k-1], derivative term D[k-1].
+ * Settled start: integral = the holding input, e_prev = d_prev = 0. */
+typedef struct { double integral, e_prev, d_prev; } MaglevPidState;
+
+/* Checks a PID's settings (finite, ts > 0, u_min < u_max, tf >= 0, anti_windup 0 to 3, the band).
+ * Returns 0, or -1 with a message naming the first setting that is wrong. */
+int maglev_pid_check(const MaglevPid *pid, char *msg, size_t msglen);
+
+/* One sample of the PID above: u[k] [MU] from w[k] and y[k] [MU], s updated. The one difference
+ * equation of the C side: the closed loops below and the controller FMU (maglev_pid_fmu.c) use it. */
+double maglev_pid_step(const MaglevPid *pid, MaglevPidState *s, double w, double y);
+
 /* The controller of a closed loop: at t_k it reads the reference w [MU], the plant's reading y [MU]
  * and the coil current i [A], and gives u [MU], held over the next sample. Kinds:
  *   0 PID: u = PID(w - y) (pid above);

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Sets up everything from a fresh clone: .venv with the package installed from source (`pip install .`:
 # scikit-build-core runs CMake, so the installed package carries the FMU, the C sources and the
-# fast-path library) plus the test tools, and the CMake build in build/ (build/maglev.fmu, C tests).
+# fast-path library) plus the test tools, and the CMake build in build/ (build/maglev.fmu, build/maglev3.fmu,
+# build/maglev_pid.fmu, C tests), then the closed loop build/maglev_loop.ssp and build/maglev_loop.fmu.
 # Needs only python3 (with venv), gcc and cmake. Safe to run again: it reinstalls the package only
 # when its sources changed (a hash of pyproject.toml, CMakeLists.txt, modelDescription.xml, c/, python/).
 set -euo pipefail
@@ -15,7 +16,7 @@ pip_quiet() {  # pip, quiet, without the warnings about unreachable extra packag
   return "${PIPESTATUS[0]}"
 }
 sources_hash() {
-  find pyproject.toml CMakeLists.txt modelDescription.xml c python -type f \
+  find pyproject.toml CMakeLists.txt modelDescription.xml modelDescription3.xml modelDescription_pid.xml c python -type f \
        \( -name '*.py' -o -name '*.c' -o -name '*.h' -o -name '*.toml' -o -name '*.txt' -o -name '*.xml' \) \
        -not -path '*/__pycache__/*' -print0 | LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1
 }
@@ -33,11 +34,14 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   # the package from source even when its version did not change.
   pip_quiet uninstall --yes maglev-cosim >/dev/null || true
   pip_quiet install ".[test]"
-  .venv/bin/python -c "import fmpy, numpy, scipy, cffi, control, matplotlib, pytest, maglev_cosim; maglev_cosim.fmu_path()" \
+  .venv/bin/python -c "import fmpy, numpy, scipy, cffi, control, matplotlib, pytest, maglev_cosim; maglev_cosim.fmu_path(); maglev_cosim.fmu_path(fmi_version=3)" \
     || { echo "[setup] package installation failed" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi
-echo "[setup] building build/maglev.fmu and the C tests with CMake"
+echo "[setup] building build/maglev.fmu, build/maglev3.fmu and the C tests with CMake"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build build --parallel 2 >/dev/null
-test -f build/maglev.fmu
+test -f build/maglev.fmu && test -f build/maglev3.fmu && test -f build/maglev_pid.fmu
+echo "[setup] writing the closed loop: build/maglev_loop.ssp and build/maglev_loop.fmu (container)"
+.venv/bin/python -m maglev_cosim.loopfmu build >/dev/null
+test -f build/maglev_loop.ssp && test -f build/maglev_loop.fmu

@@ -154,6 +154,30 @@ def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_pa
     md = {v.name: v for v in read_model_description(str(fmu)).modelVariables}
     assert float(md["T_d"].start) == pytest.approx(d["parameters"]["T_d"])
     assert float(md["T_a"].start) == 0.0
+    # provenance: its own GUID and name, a description naming the record, the date and the effect,
+    # the report as its documentation, and the calibration with the record's hash
+    import hashlib
+    import zipfile
+
+    from maglev_cosim.model_description import GUID
+
+    desc = read_model_description(str(fmu))
+    with zipfile.ZipFile(fmu) as z:
+        cal = json.loads(z.read("resources/calibration.json"))
+        assert z.read("documentation/index.html") == html.encode()
+        assert {"report.md", "diagnosis.json", "zoom.png"} <= {n.split("/", 1)[1] for n in z.namelist()
+                                                              if n.startswith("documentation/")}
+    assert cal["record"]["sha256"] == hashlib.sha256(rec.read_bytes()).hexdigest()
+    assert desc.guid != GUID and desc.guid == cal["guid"] and desc.modelName == cal["model_name"]
+    assert "rec.csv" in desc.modelName and "rec.csv" in desc.description and cal["date"] in desc.description
+    assert "delay (T_d = " in desc.description and cal["effects"] == ["delay"]
+    assert cal["parameters"]["T_d"]["value"] == d["parameters"]["T_d"]
+    assert cal["parameters"]["T_d"]["sigma"] == pytest.approx(d["uncertainties"]["T_d"])
+    assert cal["fit"]["verdict_fit"] == d["fit"]
+    from fmpy import simulate_fmu
+
+    r = simulate_fmu(str(fmu), stop_time=0.01)     # fmpy instantiates it with the issued GUID
+    assert len(r) > 1
 
 
 @pytest.mark.slow

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import zipfile
 
@@ -10,18 +11,101 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 from maglev_cosim.fmu import FmuPlant
-from maglev_cosim.model_description import GUID, generate, read_table
+from maglev_cosim.model_description import GENERATION_DATE, GUID, UNITS, generate, nominal, read_table
 
 REQUIRED_PARAMETERS = ["k_DA", "u_0", "k_i", "T_a", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD",
                        "y_MU0", "x_min", "x_max", "i_max", "x_start", "v_start", "i_start"]
 
 
-def test_committed_xml_is_what_the_c_table_generates(repo, fmu_binary):
-    committed = (repo / "modelDescription.xml").read_text()
-    generated = generate(read_table(fmu_binary))
+@pytest.mark.parametrize("fmi_version, xml", [(2, "modelDescription.xml"), (3, "modelDescription3.xml")])
+def test_committed_xml_is_what_the_c_table_generates(repo, fmu_binary, fmi_version, xml):
+    committed = (repo / xml).read_text()
+    generated = generate(read_table(fmu_binary), fmi_version=fmi_version)
     assert committed == generated, (
-        "modelDescription.xml differs from the C variable table: run "
-        f"python -m maglev_cosim.model_description {fmu_binary} {repo / 'modelDescription.xml'}")
+        f"{xml} differs from the C variable table: run python -m maglev_cosim.model_description "
+        f"--fmi {fmi_version} {fmu_binary} {repo / xml}")
+
+
+def test_generation_date_is_fixed_not_the_clock(repo):
+    """Regenerating must not make the drift test flaky: the date is a constant (module docstring)."""
+    md = read_model_description(str(repo / "modelDescription.xml"))
+    assert md.generationDateAndTime == GENERATION_DATE
+    assert md.generationTool == "maglev-cosim"
+
+
+def test_xml_ranges_are_the_c_table_ones(repo, fmu_binary):
+    """Every variable the C code gives a finite range carries it as min/max, and nothing else does."""
+    table = {v.name: v for v in read_table(fmu_binary)}
+    md = read_model_description(str(repo / "modelDescription.xml"))
+    ranged = 0
+    for mv in md.modelVariables:
+        v = table[mv.name]
+        want_min = repr(v.min) if math.isfinite(v.min) else None
+        want_max = repr(v.max) if math.isfinite(v.max) else None
+        assert (mv.min, mv.max) == (want_min, want_max), mv.name
+        ranged += want_min is not None
+    assert ranged >= 40  # every parameter and the A/D output y
+
+
+def _instantiated(fmu_path, log):
+    """A bare FMI 2.0 instance in the instantiated state (parameters checked one at a time)."""
+    from fmpy import calloc, extract, free
+    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+
+    md = read_model_description(str(fmu_path))
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu_path)),
+                      modelIdentifier=md.coSimulation.modelIdentifier, instanceName="ranges")
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(lambda env, name, status, cat, msg: log.append(msg.decode()))
+    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+    slave._keep = cb
+    slave.instantiate(callbacks=cb)
+    return md, slave
+
+
+def test_a_value_outside_min_max_is_exactly_what_the_c_code_refuses(fmu_path):
+    """For every settable variable: min and max themselves and the doubles just inside are accepted by
+    fmi2SetReal, the doubles just outside are refused (Error, naming the variable). A variable
+    without a range accepts any finite value."""
+    from fmpy.fmi1 import FMICallException
+
+    log: list[str] = []
+    md, slave = _instantiated(fmu_path, log)
+    checked = 0
+    try:
+        for mv in md.modelVariables:
+            if mv.causality not in ("parameter", "input"):
+                continue
+            lo = float(mv.min) if mv.min is not None else -math.inf
+            hi = float(mv.max) if mv.max is not None else math.inf
+            inside = [x for x in (lo, math.nextafter(lo, hi), hi, math.nextafter(hi, lo)) if math.isfinite(x)]
+            outside = [x for x in (math.nextafter(lo, -math.inf), math.nextafter(hi, math.inf)) if math.isfinite(x)]
+            if not inside:
+                inside = [-1e300, 1e300]
+            for x in inside:
+                if mv.name == "T_F" and 0 < x < 1e-6:
+                    continue  # T_F: 0 (off) or >= 1e-6 s inside its range; the description says so
+                slave.setReal([mv.valueReference], [x])
+            for x in outside:
+                with pytest.raises(FMICallException):
+                    slave.setReal([mv.valueReference], [x])
+                assert f"variable {mv.name}:" in log[-1], log[-1]
+            checked += bool(outside)
+            slave.setReal([mv.valueReference], [float(mv.start)])
+    finally:
+        slave.freeInstance()
+    assert checked >= 40
+
+
+def test_nominal_and_display_units(fmu_binary):
+    """nominal where values are far from 1, displayUnit for lengths, currents and times."""
+    rows = {v.name: v for v in read_table(fmu_binary)}
+    assert nominal(rows["k_c"]) == 1e-5 and nominal(rows["x_0"]) == 1e-2 and nominal(rows["x"]) == 1e-3
+    assert nominal(rows["k_x"]) == 1e3 and nominal(rows["g"]) is None and nominal(rows["i_max"]) is None
+    assert UNITS["m"].display == ("mm", 1e3) and UNITS["A"].display == ("mA", 1e3)
+    assert UNITS["s"].display == ("ms", 1e3)
 
 
 def test_value_references_follow_the_c_enum(repo):
@@ -35,7 +119,7 @@ def test_value_references_follow_the_c_enum(repo):
 def test_guid_is_the_same_everywhere(repo):
     md = read_model_description(str(repo / "modelDescription.xml"))
     assert md.guid == GUID
-    for src in ("c/maglev_fmu.c", "tests/c/test_fmu.c"):
+    for src in ("c/maglev_fmi_common.h", "tests/c/test_fmu.c"):
         m = re.search(r'#define (?:MAGLEV_)?GUID "(\{[^"]+\})"', (repo / src).read_text())
         assert m and m.group(1) == GUID, src
 
@@ -72,10 +156,10 @@ def test_archive_holds_binary_and_listed_sources(fmu_path):
     assert "modelDescription.xml" in names
     assert "binaries/linux64/maglev.so" in names
     listed = [f for bc in md.buildConfigurations for fs in bc.sourceFileSets for f in fs.sourceFiles]
-    assert sorted(listed) == ["maglev_fmu.c", "maglev_plant.c"]
+    assert sorted(listed) == ["maglev_fmi_common.c", "maglev_fmu.c", "maglev_plant.c"]
     for f in listed:
         assert f"sources/{f}" in names
-    assert "sources/maglev_plant.h" in names
+    assert {"sources/maglev_plant.h", "sources/maglev_fmi_common.h"} <= names
 
 
 def test_runtime_start_values_match_the_xml(fmu_path):

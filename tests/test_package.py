@@ -33,12 +33,15 @@ def test_installed_c_sources_and_model_description_are_the_repository_ones(repo)
     for name in ours:
         assert (c / name).read_bytes() == (repo / "c" / name).read_bytes(), f"{name}: {STALE}"
     assert _resources.model_description_path().read_bytes() == (repo / "modelDescription.xml").read_bytes(), STALE
+    assert _resources.model_description_path(3).read_bytes() == (repo / "modelDescription3.xml").read_bytes(), STALE
 
 
-def test_installed_fmu_carries_the_repository_model_description_and_sources(repo):
-    with zipfile.ZipFile(maglev_cosim.fmu_path()) as z:
-        assert z.read("modelDescription.xml") == (repo / "modelDescription.xml").read_bytes(), STALE
-        for name in ("maglev_fmu.c", "maglev_plant.c", "maglev_plant.h"):
+@pytest.mark.parametrize("version, xml, glue", [(2, "modelDescription.xml", "maglev_fmu.c"),
+                                                (3, "modelDescription3.xml", "maglev_fmi3.c")])
+def test_installed_fmu_carries_the_repository_model_description_and_sources(repo, version, xml, glue):
+    with zipfile.ZipFile(maglev_cosim.fmu_path(fmi_version=version)) as z:
+        assert z.read("modelDescription.xml") == (repo / xml).read_bytes(), STALE
+        for name in (glue, "maglev_fmi_common.c", "maglev_fmi_common.h", "maglev_plant.c", "maglev_plant.h"):
             assert z.read(f"sources/{name}") == (repo / "c" / name).read_bytes(), f"{name}: {STALE}"
 
 
@@ -61,6 +64,8 @@ def test_maglev_fmu_overrides_the_installed_fmu(tmp_path, monkeypatch):
         maglev_cosim.fmu_path()
     with pytest.raises(FmuError, match="missing.fmu"):
         ensure_fmu(None)
+    monkeypatch.setenv("MAGLEV_FMU3", str(other))
+    assert maglev_cosim.fmu_path(fmi_version=3) == other and ensure_fmu(None, fmi_version=3) == other
 
 
 # ----------------------------------------------------------------------------- the wheel (slow)
@@ -70,9 +75,16 @@ WHEEL_MEMBERS = [
     "maglev_cosim/_resources.py",
     "maglev_cosim/cli.py",
     "maglev_cosim/_data/maglev.fmu",
+    "maglev_cosim/_data/maglev3.fmu",
+    "maglev_cosim/_data/maglev_pid.fmu",
+    "maglev_cosim/_data/c/maglev_pid_fmu.c",
+    "maglev_cosim/_data/c/maglev_pid_fmu.h",
     "maglev_cosim/_data/modelDescription.xml",
+    "maglev_cosim/_data/modelDescription3.xml",
     "maglev_cosim/_data/libmaglev_fast.so",
     "maglev_cosim/_data/c/maglev_fmu.c",
+    "maglev_cosim/_data/c/maglev_fmi3.c",
+    "maglev_cosim/_data/c/maglev_fmi_common.c",
     "maglev_cosim/_data/c/maglev_plant.c",
     "maglev_cosim/_data/c/maglev_plant.h",
     "maglev_cosim/_data/c/maglev_replay.c",
@@ -89,7 +101,7 @@ def _run(cmd: list[str], cwd: Path, env: dict[str, str], timeout: float = 300) -
 @pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="checks the Linux file names")
 def test_wheel_installs_into_a_fresh_venv_and_runs_outside_the_clone(repo, tmp_path):
-    env = {k: v for k, v in os.environ.items() if k not in ("MAGLEV_FMU", "PYTHONPATH", "PYTHONHOME")}
+    env = {k: v for k, v in os.environ.items() if k not in ("MAGLEV_FMU", "MAGLEV_FMU3", "PYTHONPATH", "PYTHONHOME")}
 
     # 1. the wheel, built from the repository as pip builds it (isolated, scikit-build-core + CMake)
     dist = tmp_path / "dist"

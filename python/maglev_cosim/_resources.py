@@ -2,12 +2,14 @@
 
 ``pip install .`` (scikit-build-core running CMakeLists.txt) puts them into ``maglev_cosim/_data/``:
 
-- ``maglev.fmu``: the plant FMU (``binaries/<platform>/maglev.so`` and ``sources/`` inside);
-- ``modelDescription.xml``: the FMU's model description;
+- ``maglev.fmu``: the plant FMU, FMI 2.0 (``binaries/<platform>/maglev.so`` and ``sources/`` inside);
+- ``maglev3.fmu``: the same plant as an FMI 3.0 co-simulation FMU;
+- ``maglev_pid.fmu``: the controller FMU (``c/maglev_pid_fmu.c``);
+- ``modelDescription.xml``, ``modelDescription3.xml``: their model descriptions;
 - ``c/``: the C sources and headers (``maglev_plant.[ch]``, ``maglev_fmu.c``, ``maglev_replay.[ch]``);
 - ``libmaglev_fast.so`` (``.dylib``, ``maglev_fast.dll``): plant + closed-loop replay, the fast path.
 
-``$MAGLEV_FMU``, when set, names the FMU to use instead of the installed one.
+``$MAGLEV_FMU`` (``$MAGLEV_FMU3`` for FMI 3.0), when set, names the FMU to use instead of the installed one.
 """
 
 from __future__ import annotations
@@ -37,17 +39,36 @@ def data_dir() -> Path:
     return _need(DATA, "the package data folder")
 
 
-def fmu_path() -> Path:
-    """The plant FMU: ``$MAGLEV_FMU`` if set, else the installed ``maglev_cosim/_data/maglev.fmu``."""
-    env = os.environ.get("MAGLEV_FMU")
+_FMU_FILES = {2: ("MAGLEV_FMU", "maglev.fmu", "modelDescription.xml"),
+              3: ("MAGLEV_FMU3", "maglev3.fmu", "modelDescription3.xml")}
+
+
+def _version(fmi_version: int) -> tuple[str, str, str]:
+    if fmi_version not in _FMU_FILES:
+        raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
+    return _FMU_FILES[fmi_version]
+
+
+def fmu_path(fmi_version: int = 2) -> Path:
+    """The plant FMU: ``$MAGLEV_FMU`` if set, else the installed ``maglev_cosim/_data/maglev.fmu``;
+    with ``fmi_version=3``, ``$MAGLEV_FMU3`` or the installed FMI 3.0 ``maglev3.fmu``."""
+    var, name, _ = _version(fmi_version)
+    env = os.environ.get(var)
     if env:
-        return _need(Path(env), "the FMU named by $MAGLEV_FMU")
-    return _need(DATA / "maglev.fmu", "the installed FMU")
+        return _need(Path(env), f"the FMU named by ${var}")
+    return _need(DATA / name, f"the installed FMI {fmi_version}.0 FMU")
 
 
-def model_description_path() -> Path:
-    """The installed ``modelDescription.xml`` (the one inside the FMU, as a plain file)."""
-    return _need(DATA / "modelDescription.xml", "the installed modelDescription.xml")
+def pid_fmu_path() -> Path:
+    """The controller FMU (the paper's PID with a step reference): ``maglev_cosim/_data/maglev_pid.fmu``."""
+    return _need(DATA / "maglev_pid.fmu", "the installed controller FMU")
+
+
+def model_description_path(fmi_version: int = 2) -> Path:
+    """The installed ``modelDescription.xml`` (``modelDescription3.xml`` for FMI 3.0): the one inside
+    the FMU, as a plain file."""
+    name = _version(fmi_version)[2]
+    return _need(DATA / name, f"the installed {name}")
 
 
 def c_dir() -> Path:

@@ -147,7 +147,8 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
     x_op : float, optional
         Settled start position [m] (default 3.2 mm, the paper's Section 4).
     fmu : path, optional
-        The FMU for ``backend="fmu"`` (default: the installed or built ``maglev.fmu``).
+        The FMU for ``backend="fmu"`` (default: the installed or built ``maglev.fmu``); FMI 2.0 or
+        3.0 (``maglev_cosim.fmu_path(fmi_version=3)``), whichever its model description says.
 
     Returns
     -------

@@ -1,19 +1,39 @@
-"""``modelDescription.xml`` from the C variable table, so the two cannot drift apart.
+"""Model descriptions (FMI 2.0 and 3.0) from the C variable table, so the two cannot drift apart.
 
 The C plant (``c/maglev_plant.c``) owns the variable table ``maglev_variables``: names,
-value references (the ``MaglevVR`` enum order), causality, start values, units and
-descriptions. :func:`generate` renders ``modelDescription.xml`` from that table as read
-out of the compiled FMU binary (the declarations come from the installed ``maglev_plant.h``);
-``tests/test_model_description.py`` fails when the committed file differs from what the binary
+value references (the ``MaglevVR`` enum order), causality, start values, the ``[min, max]`` range
+``maglev_check_value`` enforces, units and descriptions. :func:`read_table` reads that table out of
+the compiled FMU binary (the declarations come from the installed header) and :func:`generate`
+renders it, with an :class:`Identity` (model name, identifier, GUID / instantiationToken,
+description), as ``modelDescription.xml`` for FMI 2.0 or 3.0. Any FMU whose C table has the
+``MaglevVariable`` layout can use it (``read_table(lib, header=..., table=..., enum=...)``).
+
+What the generator adds to the table, from the unit alone (:data:`UNITS`): the SI base units, a
+``TypeDefinitions`` entry per unit (its quantity), a ``displayUnit`` where people think in mm, mA
+or ms, and a ``nominal`` where the values are far from 1 (the start value's power of ten, or the
+unit's typical magnitude when the start is 0). ``min``/``max`` are the C table's own columns, so a
+value outside them is exactly what ``fmi2SetReal`` refuses (``tests/test_model_description.py``).
+
+``generationDateAndTime`` is :data:`GENERATION_DATE`, a constant, so that regenerating never
+changes the committed files; ``python -m maglev_cosim.model_description`` uses
+``$SOURCE_DATE_EPOCH`` instead when it is set (reproducible-builds convention), and the drift test
+then fails until the constant is updated to match, on purpose.
+
+``tests/test_model_description.py`` fails when the committed files differ from what the binary
 says. Regenerate, from the repository root after ``scripts/setup.sh``, with
-``python -m maglev_cosim.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``.
+``python -m maglev_cosim.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``
+and ``... --fmi 3 build/fmu/binaries/linux64/maglev.so modelDescription3.xml``; the controller
+FMU's with ``... --pid build/maglev_pid.so modelDescription_pid.xml``.
 """
 
 from __future__ import annotations
 
+import math
+import os
 import re
 import sys
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -23,35 +43,46 @@ from ._resources import c_dir
 
 GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 MODEL_IDENTIFIER = "maglev"
-SOURCE_FILES = ("maglev_fmu.c", "maglev_plant.c")
+SOURCE_FILES = ("maglev_fmu.c", "maglev_fmi_common.c", "maglev_plant.c")
+#: generationDateAndTime of the committed descriptions (see the module docstring).
+GENERATION_DATE = "2026-11-25T00:00:00Z"
 
 
-# SI base-unit exponents of every unit the table uses.
-_UNITS: dict[str, dict[str, float]] = {
-    "MU": {},
-    "1": {},
-    "m": {"m": 1},
-    "m/s": {"m": 1, "s": -1},
-    "m/s2": {"m": 1, "s": -2},
-    "s": {"s": 1},
-    "kg": {"kg": 1},
-    "A": {"A": 1},
-    "N": {"kg": 1, "m": 1, "s": -2},
-    "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
-    "V/MU": {"kg": 1, "m": 2, "s": -3, "A": -1},
-    "MU/V": {"kg": -1, "m": -2, "s": 3, "A": 1},
-    "A/V": {"kg": -1, "m": -2, "s": 3, "A": 2},
-    "V/m": {"kg": 1, "m": 1, "s": -3, "A": -1},
-    "V/m2": {"kg": 1, "s": -3, "A": -1},
-    "N.m2/A2": {"kg": 1, "m": 3, "s": -2, "A": -2},
-    "N.s/m": {"kg": 1, "s": -1},
-    "Hz": {"s": -1},
-    "rad": {"rad": 1},
-    "N/A2": {"kg": 1, "m": 1, "s": -2, "A": -2},
-    "Ohm": {"kg": 1, "m": 2, "s": -3, "A": -2},
-    "H": {"kg": 1, "m": 2, "s": -2, "A": -2},
-    "1/A": {"A": -1},
-    "H.m": {"kg": 1, "m": 3, "s": -2, "A": -2},
+@dataclass(frozen=True)
+class UnitInfo:
+    base: dict[str, int]
+    quantity: str                                # the TypeDefinitions entry's name and quantity
+    display: tuple[str, float] | None = None     # (name, factor): value_display = factor * value
+    magnitude: float | None = None               # typical size, for the nominal of a zero start
+
+
+# SI base-unit exponents, quantity and display unit of every unit the table uses.
+UNITS: dict[str, UnitInfo] = {
+    "MU": UnitInfo({}, "ConverterValue"),
+    "1": UnitInfo({}, "Dimensionless"),
+    "m": UnitInfo({"m": 1}, "Length", ("mm", 1e3), 1e-3),   # the rig is a few mm tall
+    "m/s": UnitInfo({"m": 1, "s": -1}, "Velocity"),
+    "m/s2": UnitInfo({"m": 1, "s": -2}, "Acceleration"),
+    "s": UnitInfo({"s": 1}, "Time", ("ms", 1e3)),
+    "kg": UnitInfo({"kg": 1}, "Mass", ("g", 1e3)),
+    "A": UnitInfo({"A": 1}, "Current", ("mA", 1e3)),
+    "N": UnitInfo({"kg": 1, "m": 1, "s": -2}, "Force"),
+    "V": UnitInfo({"kg": 1, "m": 2, "s": -3, "A": -1}, "Voltage"),
+    "V/MU": UnitInfo({"kg": 1, "m": 2, "s": -3, "A": -1}, "DAConverterGain"),
+    "MU/V": UnitInfo({"kg": -1, "m": -2, "s": 3, "A": 1}, "ADConverterGain"),
+    "A/V": UnitInfo({"kg": -1, "m": -2, "s": 3, "A": 2}, "Transconductance"),
+    "V/m": UnitInfo({"kg": 1, "m": 1, "s": -3, "A": -1}, "SensorGain"),
+    "V/m2": UnitInfo({"kg": 1, "s": -3, "A": -1}, "SensorCurvature"),
+    "N.m2/A2": UnitInfo({"kg": 1, "m": 3, "s": -2, "A": -2}, "CoilConstant"),
+    "N.s/m": UnitInfo({"kg": 1, "s": -1}, "DampingCoefficient"),
+    "Hz": UnitInfo({"s": -1}, "Frequency"),
+    "1/s": UnitInfo({"s": -1}, "Rate"),         # the PID's integral gain
+    "rad": UnitInfo({"rad": 1}, "Angle", ("deg", 180 / math.pi)),
+    "N/A2": UnitInfo({"kg": 1, "m": 1, "s": -2, "A": -2}, "ForceCurrentGain"),
+    "Ohm": UnitInfo({"kg": 1, "m": 2, "s": -3, "A": -2}, "Resistance"),
+    "H": UnitInfo({"kg": 1, "m": 2, "s": -2, "A": -2}, "Inductance", ("mH", 1e3)),
+    "1/A": UnitInfo({"A": -1}, "InverseCurrent"),
+    "H.m": UnitInfo({"kg": 1, "m": 3, "s": -2, "A": -2}, "InductanceLength"),
 }
 
 CAUSALITY = {0: "input", 1: "output", 2: "parameter"}
@@ -67,32 +98,91 @@ class Variable:
     start: float
     unit: str
     description: str
+    min: float = -math.inf
+    max: float = math.inf
 
 
-def read_table(library: str | Path) -> list[Variable]:
-    """Reads ``maglev_variables`` out of a compiled plant/FMU shared library."""
+@dataclass(frozen=True)
+class Identity:
+    """What a model description says besides its variables."""
+
+    model_name: str
+    model_identifier: str
+    token: str                                   # FMI 2.0 guid, FMI 3.0 instantiationToken
+    description: str
+    version: str = "0.1.0"
+    source_files: tuple[str, ...] = ()           # FMI 2.0 <SourceFiles> (3.0 has buildDescription.xml)
+    default_experiment: tuple[float, float, float] | None = (0.0, 3.0, 0.001)  # start, stop, step
+    feedthrough: frozenset[str] = field(default_factory=frozenset)  # outputs the inputs reach at once
+    generation_date: str = GENERATION_DATE
+
+
+def plant_identity(fmi_version: int = 2) -> Identity:
+    """The CE152 plant FMU's identity."""
+    return Identity(
+        model_name="CE152 magnetic levitation",
+        model_identifier=MODEL_IDENTIFIER,
+        token=GUID,
+        description="Humusoft CE152 magnetic levitation plant: D/A (Eq. 1), amplifier (Eq. 2), "
+                    "ball and coil (Eq. 8), sensor (Eq. 12), A/D (Eq. 13), with mechanical stops and converter limits",
+        source_files=SOURCE_FILES if fmi_version == 2 else (),
+        # i and F follow the input at once when T_a = 0 (Eq. 5): they may depend on u.
+        feedthrough=frozenset({"i", "F"}),
+    )
+
+
+#: The controller FMU (c/maglev_pid_fmu.[ch], build/maglev_pid.fmu).
+PID_GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0101}"
+PID_MODEL_IDENTIFIER = "maglev_pid"
+PID_SOURCE_FILES = ("maglev_pid_fmu.c", "maglev_replay.c", "maglev_plant.c")
+
+
+def pid_identity() -> Identity:
+    """The controller FMU's identity (FMI 2.0). Its output u changes only in fmi2DoStep, when the
+    controller samples its inputs: no output depends on an input at the same instant."""
+    return Identity(
+        model_name="CE152 discrete PID with step reference",
+        model_identifier=PID_MODEL_IDENTIFIER,
+        token=PID_GUID,
+        description="The paper's discrete PID (Eq. 24/25) of the CE152 magnetic levitation loop, with output "
+                    "limits, derivative filter, anti-windup and a step reference w0 -> w1 at t_step (plus the input "
+                    "w_in); samples y at t0 + k*ts in fmi2DoStep and holds u until the next sample",
+        source_files=PID_SOURCE_FILES,
+    )
+
+
+def read_pid_table(library: str | Path, header: str | Path | None = None) -> list[Variable]:
+    """The controller FMU's variable table, out of its compiled binary."""
+    return read_table(library, header=header or c_dir() / "maglev_pid_fmu.h", table="maglev_pid_variables",
+                      enum="MaglevPidVR", prefix="PID_", count="MAGLEV_PID_NVARS")
+
+
+def read_table(library: str | Path, *, header: str | Path | None = None, table: str = "maglev_variables",
+               enum: str = "MaglevVR", prefix: str = "VR_", count: str = "MAGLEV_NVARS") -> list[Variable]:
+    """Reads a ``MaglevVariable`` table (by default the plant's) out of a compiled shared library."""
     ffi = cffi.FFI()
-    header = (c_dir() / "maglev_plant.h").read_text()
+    plant_header = (c_dir() / "maglev_plant.h").read_text()
     for name in ("MaglevCausality", "MaglevVariable"):     # the C declarations, as the header has them
-        decl = re.search(r"typedef (?:enum|struct) \{[^}]*\} " + name + ";", header)
+        decl = re.search(r"typedef (?:enum|struct) \{[^}]*\} " + name + ";", plant_header)
         if decl is None:
             raise RuntimeError(f"c/maglev_plant.h: {name} not found")
         ffi.cdef(decl.group(0))
-    enum = re.search(r"typedef enum \{(.*?)\} MaglevVR;", header, re.S)
-    if enum is None:
-        raise RuntimeError("c/maglev_plant.h: MaglevVR enum not found")
-    names = re.findall(r"\b(VR_\w+|MAGLEV_NVARS)\b", enum.group(1))
-    nvars = names.index("MAGLEV_NVARS")
-    ffi.cdef(f"extern const MaglevVariable maglev_variables[{nvars}];")
+    text = plant_header if header is None else Path(header).read_text()
+    body = re.search(r"typedef enum \{(.*?)\} " + enum + ";", text, re.S)
+    if body is None:
+        raise RuntimeError(f"{header or 'c/maglev_plant.h'}: {enum} enum not found")
+    names = re.findall(r"\b(" + prefix + r"\w+|" + count + r")\b", body.group(1))
+    nvars = names.index(count)
+    ffi.cdef(f"extern const MaglevVariable {table}[{nvars}];")
     lib = ffi.dlopen(str(library))
     rows = []
     for vr in range(nvars):
-        v = lib.maglev_variables[vr]
+        v = getattr(lib, table)[vr]
         name = ffi.string(v.name).decode()
-        if "VR_" + name != names[vr]:
+        if prefix + name != names[vr]:
             raise RuntimeError(f"C table row {vr} is {name!r} but the enum says {names[vr]}")
-        rows.append(Variable(vr, name, CAUSALITY[v.causality], float(v.start),
-                             ffi.string(v.unit).decode(), ffi.string(v.description).decode()))
+        rows.append(Variable(vr, name, CAUSALITY[v.causality], float(v.start), ffi.string(v.unit).decode(),
+                             ffi.string(v.description).decode(), float(v.min), float(v.max)))
     return rows
 
 
@@ -100,69 +190,134 @@ def _num(x: float) -> str:
     return repr(float(x))
 
 
-def generate(variables: list[Variable]) -> str:
-    """The text of ``modelDescription.xml`` for a variable table."""
-    units = sorted({v.unit for v in variables})
+def nominal(v: Variable) -> float | None:
+    """A power of ten near the variable's size when that is far from 1 (None otherwise)."""
+    size = abs(v.start) if v.start != 0 and v.causality != "output" else UNITS[v.unit].magnitude
+    if not size:
+        return None
+    p = round(math.log10(size))
+    return 10.0 ** p if abs(p) >= 2 else None
+
+
+def _real_attrs(v: Variable, *, with_start: bool) -> str:
+    u = UNITS[v.unit]
+    a = f'declaredType="{u.quantity}" unit="{v.unit}"'
+    if u.display:
+        a += f' displayUnit="{u.display[0]}"'
+    if with_start:
+        a += f' start="{_num(v.start)}"'
+    if math.isfinite(v.min):
+        a += f' min="{_num(v.min)}"'
+    if math.isfinite(v.max):
+        a += f' max="{_num(v.max)}"'
+    nom = nominal(v)
+    if nom is not None:
+        a += f' nominal="{_num(nom)}"'
+    return a
+
+
+def _units(variables: list[Variable]) -> list[str]:
+    out = ['  <UnitDefinitions>']
+    for name in sorted({v.unit for v in variables}):
+        u = UNITS[name]
+        attrs = "".join(f' {k}="{int(e)}"' for k, e in u.base.items())
+        disp = f'<DisplayUnit name="{u.display[0]}" factor="{_num(u.display[1])}"/>' if u.display else ""
+        out.append(f'    <Unit name="{name}"><BaseUnit{attrs}/>{disp}</Unit>')
+    out.append('  </UnitDefinitions>')
+    return out
+
+
+def _types(variables: list[Variable], fmi_version: int) -> list[str]:
+    out = ['  <TypeDefinitions>']
+    for name in sorted({v.unit for v in variables}, key=lambda n: UNITS[n].quantity):
+        u = UNITS[name]
+        disp = f' displayUnit="{u.display[0]}"' if u.display else ""
+        attrs = f'quantity="{u.quantity}" unit="{name}"{disp}'
+        if fmi_version == 2:
+            out.append(f'    <SimpleType name="{u.quantity}"><Real {attrs}/></SimpleType>')
+        else:
+            out.append(f'    <Float64Type name="{u.quantity}" {attrs}/>')
+    out.append('  </TypeDefinitions>')
+    return out
+
+
+_LOG_CATEGORIES = [
+    '  <LogCategories>',
+    '    <Category name="logStatusError" description="Errors: rejected values and calls"/>',
+    '    <Category name="logCalls" description="FMI calls"/>',
+    '    <Category name="logAll" description="Everything"/>',
+    '  </LogCategories>',
+]
+
+
+def _default_experiment(ident: Identity) -> list[str]:
+    if ident.default_experiment is None:
+        return []
+    start, stop, step = ident.default_experiment
+    return [f'  <DefaultExperiment startTime="{_num(start)}" stopTime="{_num(stop)}" stepSize="{_num(step)}"/>']
+
+
+def _header(ident: Identity, fmi_version: int) -> list[str]:
+    token = 'guid' if fmi_version == 2 else 'instantiationToken'
     out = [
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<fmiModelDescription',
-        '  fmiVersion="2.0"',
-        '  modelName="CE152 magnetic levitation"',
-        f'  guid="{GUID}"',
-        '  description="Humusoft CE152 magnetic levitation plant: D/A (Eq. 1), amplifier (Eq. 2), '
-        'ball and coil (Eq. 8), sensor (Eq. 12), A/D (Eq. 13), with mechanical stops and converter limits"',
+        f'  fmiVersion="{fmi_version}.0"',
+        f'  modelName={quoteattr(ident.model_name)}',
+        f'  {token}="{ident.token}"',
+        f'  description={quoteattr(ident.description)}',
         '  generationTool="maglev-cosim"',
-        '  version="0.1.0"',
+        f'  generationDateAndTime="{ident.generation_date}"',
+        f'  version="{ident.version}"',
         '  variableNamingConvention="flat"',
-        '  numberOfEventIndicators="0">',
+    ]
+    if fmi_version == 2:
+        out.append('  numberOfEventIndicators="0">')
+    else:
+        out[-1] += '>'
+    return out
+
+
+def generate(variables: list[Variable], ident: Identity | None = None, fmi_version: int = 2) -> str:
+    """The text of ``modelDescription.xml`` for a variable table (FMI 2.0 or 3.0)."""
+    if fmi_version not in (2, 3):
+        raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
+    ident = ident or plant_identity(fmi_version)
+    return (_generate2 if fmi_version == 2 else _generate3)(variables, ident)
+
+
+def _generate2(variables: list[Variable], ident: Identity) -> str:
+    out = _header(ident, 2) + [
         '  <CoSimulation',
-        f'    modelIdentifier="{MODEL_IDENTIFIER}"',
+        f'    modelIdentifier="{ident.model_identifier}"',
         '    canHandleVariableCommunicationStepSize="true"',
         '    canGetAndSetFMUstate="true"',
         '    canSerializeFMUstate="true"',
         '    canNotUseMemoryManagementFunctions="false"',
         '    canInterpolateInputs="false"',
         '    maxOutputDerivativeOrder="0">',
-        '    <SourceFiles>',
-        *[f'      <File name="{f}"/>' for f in SOURCE_FILES],
-        '    </SourceFiles>',
-        '  </CoSimulation>',
-        '  <UnitDefinitions>',
     ]
-    for u in units:
-        base = _UNITS[u]
-        attrs = "".join(f' {k}="{int(e)}"' for k, e in base.items())
-        out.append(f'    <Unit name="{u}"><BaseUnit{attrs}/></Unit>')
-    out += [
-        '  </UnitDefinitions>',
-        '  <LogCategories>',
-        '    <Category name="logStatusError" description="Errors: rejected values and calls"/>',
-        '    <Category name="logCalls" description="FMI calls"/>',
-        '    <Category name="logAll" description="Everything"/>',
-        '  </LogCategories>',
-        '  <DefaultExperiment startTime="0.0" stopTime="3.0" stepSize="0.001"/>',
-        '  <ModelVariables>',
-    ]
+    if ident.source_files:
+        out += ['    <SourceFiles>', *[f'      <File name="{f}"/>' for f in ident.source_files], '    </SourceFiles>']
+    out += ['  </CoSimulation>']
+    out += _units(variables) + _types(variables, 2) + _LOG_CATEGORIES + _default_experiment(ident)
+    out += ['  <ModelVariables>']
     for v in variables:
         out.append(f'    <!-- index {v.value_reference + 1} -->')
         head = (f'    <ScalarVariable name="{v.name}" valueReference="{v.value_reference}" '
                 f'description={quoteattr(v.description)}')
         if v.causality == "input":
             out.append(f'{head} causality="input" variability="continuous">')
-            out.append(f'      <Real unit="{v.unit}" start="{_num(v.start)}"/>')
         elif v.causality == "output":
             out.append(f'{head} causality="output" variability="continuous" initial="calculated">')
-            out.append(f'      <Real unit="{v.unit}"/>')
         else:
             out.append(f'{head} causality="parameter" variability="fixed" initial="exact">')
-            out.append(f'      <Real unit="{v.unit}" start="{_num(v.start)}"/>')
+        out.append(f'      <Real {_real_attrs(v, with_start=v.causality != "output")}/>')
         out.append('    </ScalarVariable>')
     out += ['  </ModelVariables>', '  <ModelStructure>', '    <Outputs>']
-    # i and F follow the input at once when T_a = 0 (Eq. 5): they may depend on u.
-    feedthrough = {"i", "F"}
     outputs = [v for v in variables if v.causality == "output"]
     for v in outputs:
-        dep = "" if v.name in feedthrough else ' dependencies=""'
+        dep = "" if v.name in ident.feedthrough else ' dependencies=""'
         out.append(f'      <Unknown index="{v.value_reference + 1}"{dep}/>')
     out += ['    </Outputs>', '    <InitialUnknowns>']
     for v in outputs:
@@ -171,14 +326,71 @@ def generate(variables: list[Variable]) -> str:
     return "\n".join(out)
 
 
+def _generate3(variables: list[Variable], ident: Identity) -> str:
+    # FMI 3.0 needs an independent variable: time, with the value reference after the table's.
+    vr_time = len(variables)
+    out = _header(ident, 3) + [
+        '  <CoSimulation',
+        f'    modelIdentifier="{ident.model_identifier}"',
+        '    canHandleVariableCommunicationStepSize="true"',
+        '    canGetAndSetFMUState="true"',
+        '    canSerializeFMUState="true"',
+        '    providesIntermediateUpdate="false"',
+        '    hasEventMode="false"',
+        '    canReturnEarlyAfterIntermediateUpdate="false"',
+        '    maxOutputDerivativeOrder="0"/>',
+    ]
+    with_time = [*variables, Variable(vr_time, "time", "independent", 0.0, "s", "Simulation time")]  # its unit too
+    out += _units(with_time) + _types(with_time, 3) + _LOG_CATEGORIES + _default_experiment(ident)
+    out += ['  <ModelVariables>',
+            f'    <Float64 name="time" valueReference="{vr_time}" causality="independent" '
+            'variability="continuous" description="Simulation time" declaredType="Time" unit="s"/>']
+    for v in variables:
+        head = (f'    <Float64 name="{v.name}" valueReference="{v.value_reference}" '
+                f'description={quoteattr(v.description)}')
+        if v.causality == "input":
+            kind = 'causality="input" variability="continuous"'
+        elif v.causality == "output":
+            kind = 'causality="output" variability="continuous" initial="calculated"'
+        else:
+            kind = 'causality="parameter" variability="fixed" initial="exact"'
+        out.append(f'{head} {kind} {_real_attrs(v, with_start=v.causality != "output")}/>')
+    out += ['  </ModelVariables>', '  <ModelStructure>']
+    outputs = [v for v in variables if v.causality == "output"]
+    for v in outputs:
+        dep = "" if v.name in ident.feedthrough else ' dependencies=""'
+        out.append(f'    <Output valueReference="{v.value_reference}"{dep}/>')
+    for v in outputs:
+        out.append(f'    <InitialUnknown valueReference="{v.value_reference}"/>')
+    out += ['  </ModelStructure>', '</fmiModelDescription>', '']
+    return "\n".join(out)
+
+
+def _date_from_environment() -> str:
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    if not epoch:
+        return GENERATION_DATE
+    return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(int(epoch)))
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    if len(args) not in (1, 2):
-        print("usage: python -m maglev_cosim.model_description PATH/TO/maglev.so [OUT.xml]\n"
+    args = list(sys.argv[1:] if argv is None else argv)
+    fmi_version = 2
+    pid = bool(args) and args[0] == "--pid"
+    args = args[1:] if pid else args
+    if len(args) >= 2 and args[0] == "--fmi":
+        fmi_version = int(args[1])
+        args = args[2:]
+    if len(args) not in (1, 2) or fmi_version not in (2, 3) or (pid and fmi_version != 2):
+        print("usage: python -m maglev_cosim.model_description [--fmi 2|3] PATH/TO/maglev.so [OUT.xml]\n"
+              "       python -m maglev_cosim.model_description --pid PATH/TO/maglev_pid.so [OUT.xml]\n"
               "writes OUT.xml (default: modelDescription.xml in the current folder)", file=sys.stderr)
         return 2
     target = Path(args[1] if len(args) == 2 else "modelDescription.xml")
-    target.write_text(generate(read_table(args[0])))
+    ident = pid_identity() if pid else plant_identity(fmi_version)
+    ident = Identity(**{**ident.__dict__, "generation_date": _date_from_environment()})
+    table = read_pid_table(args[0]) if pid else read_table(args[0])
+    target.write_text(generate(table, ident, fmi_version))
     print(f"wrote {target}")
     return 0
 

@@ -1,11 +1,16 @@
 """Writing what the diagnosis found: ``diagnosis.json``, ``report.md`` with PNG plots, and
-``maglev_calibrated.fmu`` (the FMU with the final parameters as start values)."""
+``maglev_calibrated.fmu`` (the FMU with the final parameters as start values, its own GUID and
+model name, the report as its documentation and ``resources/calibration.json``)."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
+import uuid
 import zipfile
+from datetime import datetime, timezone
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -16,10 +21,27 @@ from .metrics import nrmse_fit, psd, resid
 from .record import Record
 
 
+#: Namespace of the GUIDs issued to calibrated and rig FMUs (uuid5 of what makes the model).
+GUID_NAMESPACE = uuid.UUID("6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0002")
+
+
+def issued_guid(base_guid: str, parameters: Mapping[str, float], source_sha256: str | None = None) -> str:
+    """The GUID of a calibrated FMU: a uuid5 of the nominal FMU's GUID, the start values and the
+    hash of the source record, so the same calibration of the same record gets the same GUID."""
+    key = json.dumps({"base": base_guid, "parameters": {k: repr(float(v)) for k, v in sorted(parameters.items())},
+                      "record_sha256": source_sha256}, sort_keys=True)
+    return "{" + str(uuid.uuid5(GUID_NAMESPACE, key)) + "}"
+
+
 def calibrated_fmu(source: Path, out: Path, parameters: Mapping[str, float], *,
-                   resources: Mapping[str, bytes] | None = None, description: str | None = None) -> Path:
-    """A copy of the FMU ``source`` whose parameter start values are ``parameters``, with extra
-    ``resources/`` files and, when given, another model description text."""
+                   resources: Mapping[str, bytes] | None = None, description: str | None = None,
+                   model_name: str | None = None, documentation: Mapping[str, bytes] | None = None,
+                   source_sha256: str | None = None) -> Path:
+    """A copy of the FMU ``source`` whose parameter start values are ``parameters``: a model of its
+    own, with a GUID of its own (:func:`issued_guid`, stated in ``resources/guid.txt`` too, the one
+    besides its built-in GUID the binary accepts), extra ``resources/`` and ``documentation/`` files
+    (FMI 2.0: ``documentation/index.html`` is the entry point) and, when given, another model name
+    and description. The ``modelIdentifier`` stays the binary's name."""
     from lxml import etree
 
     with zipfile.ZipFile(source) as zin:
@@ -32,17 +54,99 @@ def calibrated_fmu(source: Path, out: Path, parameters: Mapping[str, float], *,
                 real = sv.find("Real")
                 real.set("start", repr(float(parameters[name])))
                 lines.append(f"{name} {float(parameters[name])!r}")
-        resources = {"start_values.txt": ("\n".join(lines) + "\n").encode(), **(resources or {})}
+        guid = issued_guid(root.get("guid"), parameters, source_sha256)
+        root.set("guid", guid)
+        resources = {"start_values.txt": ("\n".join(lines) + "\n").encode(), "guid.txt": (guid + "\n").encode(),
+                     **(resources or {})}
         if description:
             root.set("description", description)
+        if model_name:
+            root.set("modelName", model_name)
         xml = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
         with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
             for item in zin.infolist():
                 data = xml if item.filename == "modelDescription.xml" else zin.read(item.filename)
                 zout.writestr(item, data)
-            for name, data in resources.items():
-                zout.writestr(f"resources/{name}", data)
+            for folder, files in (("resources", resources), ("documentation", documentation or {})):
+                for name, data in files.items():
+                    zout.writestr(f"{folder}/{name}", data)
     return out
+
+
+def _sha256(path: str | Path) -> str | None:
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return None
+
+
+def _calibration_date() -> str:
+    """Today (UTC), or the day of ``$SOURCE_DATE_EPOCH`` when set (reproducible builds)."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH")
+    now = datetime.fromtimestamp(int(epoch), timezone.utc) if epoch else datetime.now(timezone.utc)
+    return now.strftime("%Y-%m-%d")
+
+
+def calibration_data(rec: Record, d: Diagnosis) -> dict:
+    """``resources/calibration.json`` of a calibrated FMU: the source record and its hash, the date,
+    the effects found, every parameter that differs from the C defaults with its ±1 standard error
+    where the diagnosis estimated one, and the fit figures before and after."""
+    from .fast import param_table
+
+    table = param_table()
+    params = {}
+    for name, value in d.parameters.items():
+        sigma = d.uncertainties.get(name)
+        params[name] = {"value": float(value), "unit": table[name][3] if name in table else None,
+                        **({"sigma": float(sigma)} if sigma is not None and math.isfinite(sigma) else {})}
+    fits = {k: {"y": nrmse_fit(rec.y, d.sims[k]["y"]), "u": nrmse_fit(rec.u, d.sims[k]["u"])}
+            for k in ("before", "after") if k in d.sims}
+    return {
+        "format": "maglev-cosim calibration 1",
+        "record": {"file": Path(rec.path).name, "sha256": _sha256(rec.path), "samples": rec.n, "ts_s": rec.ts},
+        "date": _calibration_date(),
+        "effects": list(d.selected),
+        "verdict": d.verdict.verdict if d.verdict is not None else None,
+        "parameters": params,
+        "fit": {"free_run_nrmse_percent": fits, "rms": {"before": d.before, "after": d.after},
+                **({"verdict_fit": d.verdict.fit, "verdict_fit_before": d.verdict.fit_before}
+                   if d.verdict is not None else {})},
+    }
+
+
+def _describe(cal: dict) -> str:
+    effects = []
+    for e in cal["effects"]:
+        parts = []
+        for p in CATALOGUE[e].params:
+            q = cal["parameters"][p]
+            parts.append(f"{p} = {q['value']:.4g}" + (f" ± {q['sigma']:.2g}" if "sigma" in q else "")
+                         + (f" {q['unit']}" if q["unit"] else ""))
+        effects.append(f"{e} ({', '.join(parts)})")
+    sha = cal["record"]["sha256"]
+    return (f"CE152 plant calibrated on record {cal['record']['file']}"
+            + (f" (sha256 {sha[:16]}...)" if sha else "") + f" on {cal['date']}; effects found: "
+            + ("; ".join(effects) if effects else "none") + " (maglev-cosim diagnose; resources/calibration.json)")
+
+
+def write_calibrated_fmu(rec: Record, d: Diagnosis, fmu: Path, out: Path, report_dir: Path) -> Path:
+    """The diagnosis's calibrated FMU, with its provenance: ``resources/calibration.json``
+    (:func:`calibration_data`), and the report as ``documentation/`` (``index.html``, the
+    self-contained page, plus ``report.md``, the plots and ``diagnosis.json``)."""
+    cal = calibration_data(rec, d)
+    docs = {"index.html": (report_dir / "report.html").read_bytes()}
+    for f in sorted(report_dir.iterdir()):
+        if f.suffix in (".md", ".png", ".json") and f.is_file():
+            docs[f.name] = f.read_bytes()
+    with zipfile.ZipFile(fmu) as z:
+        base = z.read("modelDescription.xml")
+    from lxml import etree
+
+    cal["guid"] = issued_guid(etree.fromstring(base).get("guid"), d.parameters, cal["record"]["sha256"])
+    cal["model_name"] = f"CE152 magnetic levitation, calibrated on {cal['record']['file']}"
+    return calibrated_fmu(fmu, out, d.parameters, description=_describe(cal), model_name=cal["model_name"],
+                          resources={"calibration.json": (json.dumps(cal, indent=2) + "\n").encode()},
+                          documentation=docs, source_sha256=cal["record"]["sha256"])
 
 
 def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
@@ -174,8 +278,6 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     (out / "diagnosis.json").write_text(json.dumps(data, indent=2, default=float))
     written["json"] = out / "diagnosis.json"
     pngs = _plots(rec, d, out)
-    if fmu is not None:
-        written["fmu"] = calibrated_fmu(fmu, out / "maglev_calibrated.fmu", d.parameters)
 
     from .fast import param_table
 
@@ -267,14 +369,18 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     lines += ["", "## Plots", ""]
     for p in pngs:
         lines += [f"![{p}]({p})", ""]
-    if "fmu" in written:
+    if fmu is not None:
         lines += ["## Calibrated FMU", "",
                   "`maglev_calibrated.fmu` is the plant FMU with the final parameters as start values: drop it "
-                  "into any FMI 2.0 tool.", ""]
+                  "into any FMI 2.0 tool. It is a model of its own (its own GUID and model name); it carries "
+                  "this report as `documentation/index.html` and `resources/calibration.json` (parameters, "
+                  "±σ, fit figures, the sha256 of the record).", ""]
     lines += [f"Diagnosis took {d.elapsed:.1f} s. Machine-readable: `diagnosis.json`.", ""]
     (out / "report.md").write_text("\n".join(lines))
     written["report"] = out / "report.md"
     written["html"] = write_html(out / "report.md", out / "report.html")
+    if fmu is not None:
+        written["fmu"] = write_calibrated_fmu(rec, d, fmu, out / "maglev_calibrated.fmu", out)
     return written
 
 

@@ -1,10 +1,12 @@
 /* C tests of the FMI 2.0 layer: call sequences, bad arguments, several instances,
  * FMU state round trips. Run under ASan/UBSan in CI (MAGLEV_SANITIZE=ON). */
+#define _POSIX_C_SOURCE 200809L /* mkdtemp, for the resources folder of test_issued_guid */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "fmi2Functions.h"
 #include "maglev_plant.h"
@@ -130,6 +132,8 @@ static void test_bad_values(void) {
     CHECK(fmi2SetReal(c, &outvr, 1, &one) == fmi2Error && logged("output"), "output set: %s", last_log);
     fmi2ValueReference unknown = 9999;
     CHECK(fmi2SetReal(c, &unknown, 1, &one) == fmi2Error && logged("9999"), "unknown vr: %s", last_log);
+    fmi2ValueReference all_ones = 0xffffffffu; /* what the FMI 3.0 glue's "no time variable" marker is */
+    CHECK(fmi2SetReal(c, &all_ones, 1, &one) == fmi2Error && logged("4294967295"), "vr 2^32-1: %s", last_log);
     /* relations between parameters are checked when initialisation ends */
     fmi2ValueReference xmax = VR_x_max;
     double too_high = 9e-3;
@@ -757,6 +761,41 @@ static void test_refused_step_keeps_time(void) {
     fmi2FreeInstance(d);
 }
 
+/* A calibrated FMU's GUID, issued by the packager in resources/guid.txt: exactly that GUID is
+ * accepted (the built-in one no longer), and a guid.txt without a GUID is refused, naming the file. */
+static void write_file(const char *path, const char *text) {
+    FILE *fp = fopen(path, "w");
+    CHECK(fp != NULL, "cannot write %s", path);
+    if (!fp) return;
+    fputs(text, fp);
+    fclose(fp);
+}
+
+static void test_issued_guid(void) {
+    char dir[] = "/tmp/maglev_guid_XXXXXX", uri[64], file[64];
+    CHECK(mkdtemp(dir) != NULL, "mkdtemp failed");
+    snprintf(uri, sizeof uri, "file://%s", dir);
+    snprintf(file, sizeof file, "%s/guid.txt", dir);
+    const char *issued = "{0b6c2a8e-1111-5222-8333-444455556666}";
+    write_file(file, "{0b6c2a8e-1111-5222-8333-444455556666}\n");
+    fmi2Component c = fmi2Instantiate("cal", fmi2CoSimulation, issued, uri, &callbacks, 0, 0);
+    CHECK(c != NULL, "issued GUID refused: %s", last_log);
+    fmi2FreeInstance(c);
+    CHECK(fmi2Instantiate("cal", fmi2CoSimulation, GUID, uri, &callbacks, 0, 0) == NULL && logged(issued) &&
+          logged("guid.txt"), "built-in GUID accepted by a calibrated FMU: %s", last_log);
+    CHECK(fmi2Instantiate("cal", fmi2CoSimulation, "{0b6c2a8e-1111-5222-8333-444455556667}", uri, &callbacks, 0, 0) ==
+          NULL, "a tampered GUID accepted");
+    write_file(file, "not a guid\n");
+    CHECK(fmi2Instantiate("cal", fmi2CoSimulation, GUID, uri, &callbacks, 0, 0) == NULL && logged("resources/guid.txt"),
+          "a guid.txt without a GUID accepted: %s", last_log);
+    remove(file);
+    rmdir(dir);
+    /* no guid.txt: the built-in GUID, as before */
+    c = fmi2Instantiate("nominal", fmi2CoSimulation, GUID, uri, &callbacks, 0, 0);
+    CHECK(c != NULL, "built-in GUID refused without guid.txt: %s", last_log);
+    fmi2FreeInstance(c);
+}
+
 int main(void) {
     test_instantiate_arguments();
     test_call_sequence();
@@ -777,6 +816,7 @@ int main(void) {
     test_rig_physics();
     test_instantiate_failure_logged();
     test_refused_step_keeps_time();
+    test_issued_guid();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }

@@ -1,0 +1,104 @@
+/* What the FMI 2.0 glue (maglev_fmu.c) and the FMI 3.0 glue (maglev_fmi3.c) share: the instance,
+ * its state machine, logging, value checks, FMU states and their serialisation, the step. No FMI
+ * types here: statuses are the numbers both standards give them (OK 0, Warning 1, Error 3), and
+ * every function takes the calling entry point's name for its messages. */
+#ifndef MAGLEV_FMI_COMMON_H
+#define MAGLEV_FMI_COMMON_H
+
+#include <stddef.h>
+
+#include "maglev_plant.h"
+
+/* Must equal the guid (2.0) / instantiationToken (3.0) of the model descriptions
+ * (tests/test_model_description.py). */
+#define MAGLEV_GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
+
+enum { MF_OK = 0, MF_WARNING = 1, MF_ERROR = 3 };
+
+/* The states both standards share (FMI 3.0 calls StepComplete "Step Mode"; StepFailed is FMI 2.0's). */
+typedef enum {
+    MF_START_AND_END = 1 << 0,
+    MF_INSTANTIATED = 1 << 1,
+    MF_INITIALIZATION_MODE = 1 << 2,
+    MF_STEP_COMPLETE = 1 << 3,
+    MF_STEP_FAILED = 1 << 4,
+    MF_TERMINATED = 1 << 5,
+    MF_ERROR_STATE = 1 << 6,
+} MfState;
+
+#define MF_ANY_LIVE (MF_INSTANTIATED | MF_INITIALIZATION_MODE | MF_STEP_COMPLETE | MF_STEP_FAILED | MF_TERMINATED \
+                     | MF_ERROR_STATE)
+#define MF_MASK_GET (MF_INITIALIZATION_MODE | MF_STEP_COMPLETE | MF_STEP_FAILED | MF_TERMINATED | MF_ERROR_STATE)
+#define MF_MASK_SET (MF_INSTANTIATED | MF_INITIALIZATION_MODE | MF_STEP_COMPLETE)
+#define MF_MASK_FMUSTATE MF_ANY_LIVE
+
+struct MfInstance;
+/* Hands one finished message to the importer's logger. */
+typedef void (*MfLogFn)(const struct MfInstance *f, int status, const char *category, const char *message);
+
+typedef struct MfSnapshot MfSnapshot;
+
+typedef struct MfInstance {
+    char name[128];
+    MfLogFn log;
+    int logging;
+    MfState state;
+    double start_time, stop_time;
+    int stop_defined;
+    unsigned int time_vr;        /* value reference of the independent variable time (FMI 3.0), or MF_NO_TIME_VR */
+    MaglevAllocator alloc;
+    MaglevPlant plant;
+    MfSnapshot *snapshots;
+} MfInstance;
+
+#define MF_NO_TIME_VR 0xffffffffu
+
+/* Sets up an instance the glue has allocated (alloc's env reaches the importer's allocator):
+ * defaults, then the rig's start values from resources_dir/start_values.txt when that file exists
+ * (resources_dir NULL: none). Returns 0, or -1 with a message in msg. */
+int mf_init(MfInstance *f, const char *name, int logging, MfLogFn log, const MaglevAllocator *alloc,
+            unsigned int time_vr, const char *resources_dir, char *msg, size_t msglen);
+/* Frees what the instance owns (not the instance itself). */
+void mf_release(MfInstance *f);
+
+/* The directory a file: URI names (FMI 2.0's fmuResourceLocation); 0, or -1 if it is not one. */
+int mf_uri_to_path(const char *uri, char *out, size_t len);
+
+/* The GUID an instance accepts. A calibrated or rig FMU is a model of its own with a GUID of its
+ * own, issued by the packager (maglev_cosim.report.calibrated_fmu) and stated in
+ * resources_dir/guid.txt: with that file exactly that GUID, without it exactly MAGLEV_GUID, so a
+ * description and a binary or resources that do not belong together are still refused. Returns 0
+ * with guid set, or -1 with msg when guid.txt is there but holds no GUID. */
+int mf_accepted_guid(const char *resources_dir, char *guid, size_t glen, char *msg, size_t len);
+
+const char *mf_state_name(MfState s);
+void mf_log(const MfInstance *f, int status, const char *category, const char *fmt, ...);
+int mf_error(MfInstance *f, const char *fmt, ...);
+/* Instance present and call allowed in its state; 0 (with a message) when not. */
+int mf_guard(MfInstance *f, const char *fn, int mask);
+
+int mf_set_debug_logging(MfInstance *f, const char *fn, int on, size_t n, const char *const categories[]);
+int mf_setup_experiment(MfInstance *f, const char *fn, int tol_defined, double tol, double start, int stop_defined,
+                        double stop);
+int mf_enter_initialization(MfInstance *f);
+int mf_exit_initialization(MfInstance *f, const char *fn);
+int mf_terminate(MfInstance *f);
+int mf_reset(MfInstance *f);
+
+int mf_get_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t nvr, double value[]);
+int mf_set_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t nvr, const double value[]);
+/* For the types the FMU has no variable of: nothing to get or set, so any reference is an error. */
+int mf_no_such_type(MfInstance *f, const char *fn, int mask, size_t nvr, const unsigned int vr[]);
+
+/* The step from the importer's currentCommunicationPoint t by h. */
+int mf_do_step(MfInstance *f, const char *fn, double t, double h);
+
+/* FMU states (opaque pointers the importer holds). */
+int mf_get_state(MfInstance *f, const char *fn, void **state);
+int mf_set_state(MfInstance *f, const char *fn, void *state);
+int mf_free_state(MfInstance *f, const char *fn, void **state);
+int mf_serialized_size(MfInstance *f, const char *fn, void *state, size_t *size);
+int mf_serialize(MfInstance *f, const char *fn, void *state, unsigned char *buf, size_t size);
+int mf_deserialize(MfInstance *f, const char *fn, const unsigned char *buf, size_t size, void **state);
+
+#endif

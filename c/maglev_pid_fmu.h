@@ -1,0 +1,40 @@
+/* The controller FMU (build/maglev_pid.fmu): the paper's discrete PID (Eq. 24/25, maglev_pid_step
+ * of maglev_replay.c) with a step reference, as an FMI 2.0 co-simulation FMU. Its variable table
+ * has the plant's MaglevVariable layout, so python/maglev_cosim/model_description.py generates
+ * its modelDescription (modelDescription_pid.xml) from this table too. */
+#ifndef MAGLEV_PID_FMU_H
+#define MAGLEV_PID_FMU_H
+
+#include "maglev_plant.h"
+
+/* Value references: the FMU's interface, in this order (tests/test_model_description.py). */
+typedef enum {
+    PID_y = 0,
+    PID_w_in,
+    PID_u,
+    PID_w,
+    PID_ts,
+    PID_kp,
+    PID_ki,
+    PID_kd,
+    PID_tf,
+    PID_u_min,
+    PID_u_max,
+    PID_anti_windup,
+    PID_i_lo,
+    PID_i_hi,
+    PID_backoff,
+    PID_u_hold,
+    PID_w0,
+    PID_w1,
+    PID_t_step,
+    MAGLEV_PID_NVARS
+} MaglevPidVR;
+
+#define MAGLEV_PID_FIRST_PARAM PID_ts
+#define MAGLEV_PID_NPARAMS (MAGLEV_PID_NVARS - PID_ts)
+
+/* One row per value reference, indexed by MaglevPidVR. */
+extern const MaglevVariable maglev_pid_variables[MAGLEV_PID_NVARS];
+
+#endif
