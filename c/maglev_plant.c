@@ -70,6 +70,7 @@ const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
     [VR_a_i] = {"a_i", MAGLEV_PARAMETER, 1.0, 0.0, 1e3, "1/A", "Current scale of the inductance's current dependence"},
     [VR_b_i] = {"b_i", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "1", "Offset of the inductance's current dependence"},
     [VR_V_min] = {"V_min", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "V", "Lowest coil voltage a voltage drive applies (a PWM stage's floor)"},
+    [VR_T_y] = {"T_y", MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of a first-order lag through which the sensor sees the position (effect sensor_lag; 0 = off)"},
     [VR_solver_step] = {"solver_step", MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step"},
     [VR_F] = {"F", MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8"},
 };
@@ -161,6 +162,9 @@ int maglev_check_plant(const MaglevPlant *m, char *msg, size_t len) {
     if (!isfinite(m->v)) return fail(msg, len, "variable v: value %g is not finite", m->v);
     if (!(m->i >= 0 && m->i <= P(m, i_max)))
         return fail(msg, len, "variable i: %g A lies outside [0, i_max = %g] A", m->i, P(m, i_max));
+    if (P(m, T_y) > 0 ? !(m->xs >= P(m, x_min) && m->xs <= P(m, x_max)) : m->xs != m->x)
+        return fail(msg, len, "variable xs: the position the sensor sees, %g m, %s", m->xs,
+                    P(m, T_y) > 0 ? "lies outside the stops" : "differs from x without a sensor lag");
     if (P(m, T_F) > 0 ? !(m->F >= 0 && isfinite(m->F)) : m->F != 0)
         return fail(msg, len, "variable F: %g N is not a force the lag can hold", m->F);
     if (m->contact < CONTACT_LOWER || m->contact > CONTACT_UPPER)
@@ -434,6 +438,38 @@ static int stays_on_stop(const Piece *pc, Mech s, int contact, double i_now) {
     return sign * (static_force(m, i_now, s.x) - w) >= 0;
 }
 
+/* The sensor lag x_s' = (x - x_s)/T_y over a substep h = r*T_y, exactly, for x(theta*h) =
+ * sum_k c_k theta^k (k <= 3): x_s(h) = w[0]*x_s(0) + sum_k w[k+1]*c_k with w[0] = e^-r and
+ * w[k+1] = r*k!*phi_{k+1}(-r), the exponential integrators' phi functions (series for small r, where
+ * their recursion would cancel). */
+static void lag_weights(double r, double w[5]) {
+    double z = -r, phi[5];
+    phi[0] = exp(z);
+    if (r < 1.0) {
+        double fact = 1.0; /* k! */
+        for (int k = 1; k <= 4; k++) {
+            fact *= k;
+            double term = 1.0 / fact, sum = 0.0;
+            for (int j = 0; j < 30 && term != 0.0; j++) {
+                sum += term;
+                term *= z / (j + k + 1);
+            }
+            phi[k] = sum;
+        }
+    } else {
+        double fact = 1.0;
+        for (int k = 0; k < 4; k++) {
+            if (k > 0) fact *= k;
+            phi[k + 1] = (phi[k] - 1.0 / fact) / z;
+        }
+    }
+    w[0] = phi[0];
+    w[1] = r * phi[1];
+    w[2] = r * phi[2];
+    w[3] = 2 * r * phi[3];
+    w[4] = 6 * r * phi[4];
+}
+
 /* Integrates [t0, t0 + len) with a constant delayed input. RK4 sees the current's exponential
  * transient as a fast forcing term: while it exceeds 1 uA the substeps are T_a/8 at most (the
  * 1 kHz closed loop then agrees with the solve_ivp reference to 1e-8 MU); afterwards they grow
@@ -458,6 +494,8 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
     double bounds[2] = {t_fine, len}, hs[2] = {hfine, hmax}, tau = 0.0;
     double d = pc.i0 - pc.ic;
     int resting = 0;
+    const double Ty = P(m, T_y);
+    double xs = m->xs;
     for (int part = 0; part < 2 && !resting; part++) {
         double span = bounds[part] - tau;
         if (span <= 0) continue;
@@ -469,6 +507,8 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
         double h = over ? hs[part] : span / (double)n;
         /* the current's exponential by recurrence: e^(-(k+1)h/T) = e^(-kh/T) * q */
         double E = 1.0, q = 0.0, qh = 0.0;
+        double ws[5] = {0};
+        if (Ty > 0) lag_weights(h / Ty, ws);
         if (P(m, T_a) > 0) {
             E = exp(-tau / P(m, T_a));
             q = exp(-h / P(m, T_a));
@@ -483,7 +523,12 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
                 break;
             }
             if (k >= n || *work >= MAGLEV_STEP_BUDGET) return -1;
+            double xa = s.x, va = s.v;
             substep(&pc, tau + k * h, &s, &m->contact, h, cur);
+            if (Ty > 0) { /* x over the substep as the cubic through its ends' positions and velocities */
+                double dx = s.x - xa, c2 = 3 * dx - (2 * va + s.v) * h, c3 = -2 * dx + (va + s.v) * h;
+                xs = ws[0] * xs + ws[1] * xa + ws[2] * va * h + ws[3] * c2 + ws[4] * c3;
+            }
             E *= q;
         }
         if (!resting) tau = bounds[part];
@@ -492,7 +537,9 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
         double Fs = static_force(m, pc.ic, s.x);
         s.F = Fs + (s.F - Fs) * exp(-(len - tau) / P(m, T_F));
     }
+    if (resting && Ty > 0) xs = s.x + (xs - s.x) * exp(-(len - tau) / Ty);
     m->x = s.x;
+    m->xs = Ty > 0 ? xs : s.x;
     m->v = s.v;
     m->F = P(m, T_F) > 0 ? s.F : 0.0;
     m->i = pc.voltage ? s.i : clip(current_at(m, pc.i0, pc.ic, len), 0.0, P(m, i_max)); /* against rounding past the ends */
@@ -607,6 +654,7 @@ static int start_state(MaglevPlant *m, double t0, double u0, char *msg, size_t l
     m->v = P(m, v_start);
     m->i = (P(m, T_a) > 0 || voltage_drive(m)) ? P(m, i_start) : current_command(m, u0);
     m->F = P(m, T_F) > 0 ? static_force(m, m->i, m->x) : 0.0;
+    m->xs = m->x; /* the sensor has settled on the start position */
     m->contact = CONTACT_NONE;
     long work = 0;
     Piece pc = make_piece(m, m->i, m->i, coil_volts(m, u0), &work);
@@ -692,7 +740,7 @@ double maglev_get(const MaglevPlant *m, MaglevVR vr) {
         if (P(m, T_F) > 0) return m->F;
         return static_force(m, maglev_get(m, VR_i), m->x);
     }
-    case VR_y: return clip(maglev_reading(m, m->x, m->time), -MU_LIMIT, MU_LIMIT); /* Eq. 13 */
+    case VR_y: return clip(maglev_reading(m, m->xs, m->time), -MU_LIMIT, MU_LIMIT); /* Eq. 13 */
     default:
         if (vr >= MAGLEV_FIRST_PARAM && vr <= VR_solver_step) return maglev_param(m, vr);
         return NAN;
@@ -727,10 +775,10 @@ int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator 
 }
 
 /* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, u32 tag, i32 initialized, doubles
- * (params, time, u, x, v, i, F), i32 contact, hist pairs, u64 FNV-1a of all before. */
+ * (params, time, u, x, v, i, F, xs), i32 contact, hist pairs, u64 FNV-1a of all before. */
 #define SER_MAGIC "MGLV"
-#define SER_VERSION 2u
-#define SER_NSTATE 6
+#define SER_VERSION 3u
+#define SER_NSTATE 7
 
 static size_t ser_header(void) { return 4 + 4 + 4 + 8 + 4 + 4; }
 
@@ -762,7 +810,7 @@ void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf
     unsigned int version = SER_VERSION, np = MAGLEV_NPARAMS;
     unsigned long long hl = m->hist.len;
     int contact = m->contact, initialized = m->initialized;
-    double st[SER_NSTATE] = {m->time, m->u, m->x, m->v, m->i, m->F};
+    double st[SER_NSTATE] = {m->time, m->u, m->x, m->v, m->i, m->F, m->xs};
     b = put(b, SER_MAGIC, 4);
     b = put(b, &version, 4);
     b = put(b, &np, 4);
@@ -809,7 +857,7 @@ int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *b
     b = get(b, tmp.p, sizeof tmp.p);
     b = get(b, st, sizeof st);
     b = get(b, &tmp.contact, 4);
-    tmp.time = st[0]; tmp.u = st[1]; tmp.x = st[2]; tmp.v = st[3]; tmp.i = st[4]; tmp.F = st[5];
+    tmp.time = st[0]; tmp.u = st[1]; tmp.x = st[2]; tmp.v = st[3]; tmp.i = st[4]; tmp.F = st[5]; tmp.xs = st[6];
     tmp.initialized = initialized;
     tmp.hist.len = 0;
     if (hl) {

@@ -54,6 +54,7 @@ typedef enum {
     VR_a_i,
     VR_b_i,
     VR_V_min,
+    VR_T_y,
     VR_solver_step,
     VR_F,
     MAGLEV_NVARS
@@ -102,6 +103,7 @@ typedef struct {
     double time;                /* [s] */
     double u;                   /* [MU] input held since the last communication point */
     double x, v, i, F;          /* [m] [m/s] [A] [N] */
+    double xs;                  /* [m] the position the sensor sees (x itself unless T_y > 0) */
     int contact;                /* MaglevContact */
     MaglevHistory hist;
 } MaglevPlant;

@@ -297,7 +297,7 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
 
 /* ---- prediction-error replay: the extended Kalman filter (maglev_replay.h) ---- */
 
-#define NS 5 /* x, v, i, F, d */
+#define NS 6 /* x, v, i, F, d, xs (the position the sensor sees) */
 #define JAC_EVERY 10
 
 /* P = M P M' */
@@ -323,6 +323,7 @@ static void get_state(const MaglevPlant *m, double d, double s[NS]) {
     s[2] = m->i;
     s[3] = m->F;
     s[4] = d;
+    s[5] = m->xs;
 }
 
 /* Puts a filtered state into the plant: the ball between the stops and free (the plant finds an
@@ -330,6 +331,7 @@ static void get_state(const MaglevPlant *m, double d, double s[NS]) {
 static void put_state(MaglevPlant *m, const double s[NS]) {
     double lo = maglev_param(m, VR_x_min), hi = maglev_param(m, VR_x_max);
     m->x = s[0] < lo ? lo : (s[0] > hi ? hi : s[0]);
+    m->xs = maglev_param(m, VR_T_y) > 0 ? (s[5] < lo ? lo : (s[5] > hi ? hi : s[5])) : m->x;
     m->v = s[1];
     if (maglev_param(m, VR_T_a) > 0 || maglev_param(m, VR_R_c) > 0) {
         double imax = maglev_param(m, VR_i_max);
@@ -359,6 +361,7 @@ static int advance(MaglevPlant *m, double u, double d, double ts, char *msg, siz
         double lo = maglev_param(m, VR_x_min), hi = maglev_param(m, VR_x_max);
         if (m->x < lo) { m->x = lo; m->v = 0; }
         if (m->x > hi) { m->x = hi; m->v = 0; }
+        if (!(maglev_param(m, VR_T_y) > 0)) m->xs = m->x; /* a lag's xs moves with x in the next steps */
     }
     return 0;
 }
@@ -425,10 +428,11 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
     const double mk = maglev_param(&m, VR_m_k), mg = mk * maglev_param(&m, VR_g);
     const double a = exp(-6.283185307179586 * f->f_force * ts), r2 = f->r_sensor * f->r_sensor;
     const int current_state = maglev_param(&m, VR_T_a) > 0 || maglev_param(&m, VR_R_c) > 0;
-    const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1};
-    const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg};
+    const int sensor_lag = maglev_param(&m, VR_T_y) > 0, ys = sensor_lag ? 5 : 0; /* the state y reads */
+    const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1, sensor_lag};
+    const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg, 1e-7};
     /* process noise besides d's own: tiny, to keep the lags' covariance well conditioned */
-    const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0};
+    const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0, 1e-16};
     double P[NS][NS] = {{0}};
     double dv_dx;
     maglev_sensor_volts(&m, m.x, &dv_dx);
@@ -438,6 +442,8 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
     P[2][2] = active[2] ? 1e-4 : 0;
     P[3][3] = active[3] ? 1e-4 * mg * mg : 0;
     P[4][4] = f->q_force * f->q_force;
+    P[5][5] = sensor_lag ? P[0][0] : 0;
+    P[0][5] = P[5][0] = sensor_lag ? P[0][0] : 0; /* at the start the sensor has settled on x */
     double d = 0.0, A[NS][NS] = {{0}};
     CtlState cs;
     if (ctl) {
@@ -450,11 +456,11 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
         /* measurement update with y[k] */
         double yhat = maglev_get(&m, VR_y);
         if (fabs(yhat) < 1.0 && fabs(y[k]) < 1.0) {
-            double h = 1e-7, H = (maglev_reading(&m, m.x + h, m.time) - maglev_reading(&m, m.x - h, m.time)) / (2 * h);
+            double h = 1e-7, H = (maglev_reading(&m, m.xs + h, m.time) - maglev_reading(&m, m.xs - h, m.time)) / (2 * h);
             double e = y[k] - yhat;
             if (innov) innov[k] = e;
-            if (innov_var) innov_var[k] = H * H * P[0][0] + r2;
-            scalar_update(&m, &d, P, 0, H, e, r2);
+            if (innov_var) innov_var[k] = H * H * P[ys][ys] + r2;
+            scalar_update(&m, &d, P, ys, H, e, r2);
         }
         /* measurement update with the measured current (a state of its own only with a lag or a
          * voltage drive; otherwise it is a function of the input and carries nothing new) */
@@ -529,7 +535,8 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
             }
             double s2[NS];
             get_state(&pert, a * d, s2);
-            for (int i = 0; i < 4; i++) A[i][j] = (s2[i] - s1[i]) / delta[j];
+            for (int i = 0; i < NS; i++)
+                if (i != 4) A[i][j] = (s2[i] - s1[i]) / delta[j];
             maglev_release(&pert, &maglev_std_allocator);
         }
         maglev_release(&m, &maglev_std_allocator);

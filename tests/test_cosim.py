@@ -139,6 +139,8 @@ def test_closed_loop_result_writes_a_record(tmp_path, fmu_path):
     {"n_F": 3.0},
     {"n_F": 1.5, "x_n": 2.0e-3},
     {"u_dz": 1.2},
+    {"T_y": 2e-3},
+    {"T_y": 1e-3, "T_a": 1e-3, "T_d": 1e-3},
 ])
 def test_each_effect_agrees_between_the_c_plant_and_the_reference(fmu_path, effect):
     """The catalogue's effects, written twice (C and Python), agree in closed loop: 1 s with a

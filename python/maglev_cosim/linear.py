@@ -55,7 +55,8 @@ def linearize(p: PlantParams, x: float | None = None, i: float | None = None) ->
     -------
     control.StateSpace
         Named ``maglev``: input ``u`` [MU], output ``y`` [MU], states ``x`` [m], ``v`` [m/s] and,
-        when their lags are on, ``i`` [A] (``T_a > 0``) and ``F`` [N] (``T_F > 0``).
+        when their lags are on, ``i`` [A] (``T_a > 0``), ``F`` [N] (``T_F > 0``) and ``x_s`` [m], the
+        position the sensor sees (``T_y > 0``).
     """
     x = PAPER_OPERATING_POINT[0] if x is None else x
     pt = formulas.point(p, x, i)
@@ -95,6 +96,13 @@ def linearize(p: PlantParams, x: float | None = None, i: float | None = None) ->
     C = np.zeros((1, n))
     C[0, 0] = c_y
     states = ["x", "v"] + (["i"] if p.T_a > 0 else []) + (["F"] if lag_f else [])
+    if p.T_y > 0:   # the sensor's lag: x_s' = (x - x_s)/T_y, y reads x_s
+        A = np.block([[A, np.zeros((n, 1))], [np.zeros((1, n + 1))]])
+        A[n, 0], A[n, n] = 1.0 / p.T_y, -1.0 / p.T_y
+        B = np.vstack([B, [[0.0]]])
+        C = np.zeros((1, n + 1))
+        C[0, n] = c_y
+        states.append("x_s")
     return control.ss(A, B, C, np.zeros((1, 1)), states=states, inputs=["u"], outputs=["y"], name="maglev")
 
 

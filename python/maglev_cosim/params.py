@@ -59,6 +59,7 @@ class PlantParams:
     a_i: float = 1.0           #: its current scale [1/A]
     b_i: float = 0.0           #: its offset [-]
     V_min: float = 0.0         #: lowest coil voltage of a voltage drive [V]
+    T_y: float = 0.0           #: sensor lag [s]: the sensor sees the position through a first-order lag (effect sensor_lag)
     solver_step: float = 1e-4  #: largest internal RK4 step [s]
 
     def replace(self, **changes: float) -> PlantParams:
@@ -99,7 +100,7 @@ SOURCES: dict[str, str] = {
     "u_dz": "effect amplifier_dead_zone (off)", "k_e": "other rigs' exponential force law (off)",
     "z_e": "other rigs' exponential force law", "R_c": "other rigs' voltage drive (off: Eq. 2)",
     "L_0": "voltage drive", "L_x": "voltage drive", "z_L": "voltage drive", "L_g": "voltage drive", "L_i": "voltage drive",
-    "a_i": "voltage drive", "b_i": "voltage drive", "V_min": "voltage drive", "solver_step": "numerics",
+    "a_i": "voltage drive", "b_i": "voltage drive", "V_min": "voltage drive", "T_y": "effect sensor_lag (off)", "solver_step": "numerics",
 }
 
 _SECTION3 = PlantParams()

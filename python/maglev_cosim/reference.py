@@ -2,7 +2,7 @@
 
 Same equations and limits as docs/model.md, written apart from the C plant and integrated by a
 different kind of method: scipy's ``solve_ivp`` (DOP853, tight tolerances) on the full state
-``[x, v, i, F]`` between input breakpoints, with stop impacts and releases as terminal events.
+``[x, v, i, F, x_s]`` (``x_s``: the position the sensor sees through its lag ``T_y``) between input breakpoints, with stop impacts and releases as terminal events.
 Nothing here calls C. :func:`maglev_cosim.loop.simulate` runs it in closed loop
 (``backend="reference"``).
 """
@@ -18,7 +18,7 @@ from scipy.integrate import solve_ivp
 from .params import PlantParams
 
 RTOL = 1e-12
-ATOL = np.array([1e-16, 1e-14, 1e-14, 1e-14])
+ATOL = np.array([1e-16, 1e-14, 1e-14, 1e-14, 1e-16])
 
 
 class ReferencePlant:
@@ -39,7 +39,7 @@ class ReferencePlant:
         self.volt = p.R_c > 0  # a voltage drive: the current is a state, the piece's input a voltage
         i = p.i_start if (p.T_a > 0 or self.volt) else self._command(self.u)
         F = self._force(i, p.x_start)
-        self.z = np.array([p.x_start, p.v_start, i, F])
+        self.z = np.array([p.x_start, p.v_start, i, F, p.x_start])
         self.mode = 0
         net = F - p.m_k * p.g
         if p.x_start >= p.x_max and (p.v_start > 0 or (p.v_start == 0 and net >= 0)):
@@ -81,7 +81,8 @@ class ReferencePlant:
         p = self.p
 
         def f(t: float, z: np.ndarray) -> np.ndarray:
-            x, v, i, F = z
+            x, v, i, F, xs = z
+            dxs = (x - xs) / p.T_y if p.T_y > 0 else 0.0
             if self.volt:
                 di = self._coil(ic, i, x, 0.0 if self.mode else v)
             else:
@@ -90,9 +91,9 @@ class ReferencePlant:
             dF = (fs - F) / p.T_F if p.T_F > 0 else 0.0
             force = F if p.T_F > 0 else fs
             if self.mode:
-                return np.array([0.0, 0.0, di, dF])
+                return np.array([0.0, 0.0, di, dF, dxs])
             friction = p.F_c * math.tanh(v / 1e-4) if p.F_c > 0 else 0.0
-            return np.array([v, (force - p.k_FV * v - friction) / p.m_k - p.g, di, dF])
+            return np.array([v, (force - p.k_FV * v - friction) / p.m_k - p.g, di, dF, dxs])
 
         return f
 
@@ -171,10 +172,11 @@ class ReferencePlant:
     def outputs(self) -> dict[str, float]:
         """y [MU] (Eq. 12, 13), x [m], v [m/s], i [A], F [N] now."""
         p = self.p
-        x, v, i, F = self.z
+        x, v, i, F, xs = self.z
+        xs = xs if p.T_y > 0 else x     # the sensor's lag (Eq. 12 reads x itself without it)
         if p.T_a <= 0 and not self.volt:
             i = self._command(self._delayed(self.time))
         force = F if p.T_F > 0 else self._force(i, x)
-        yv = p.k_x * x + p.y_0 + p.k_x2 * x * (x - p.x_cal) + p.A_d * math.sin(2 * math.pi * p.f_d * self.time + p.phi_d)
+        yv = p.k_x * xs + p.y_0 + p.k_x2 * xs * (xs - p.x_cal) + p.A_d * math.sin(2 * math.pi * p.f_d * self.time + p.phi_d)
         y = min(max(p.k_AD * yv + p.y_MU0, -1.0), 1.0)
         return {"y": y, "x": float(x), "v": float(v), "i": float(i), "F": float(force)}

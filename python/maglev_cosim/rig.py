@@ -70,6 +70,7 @@ class RigConfig:
     n_F: float = 2.0            # force_exponent
     F_c: float = 0.0            # coulomb_friction [N]
     u_dz: float = 0.0           # amplifier_dead_zone [V]
+    T_y: float = 0.0            # sensor_lag [s]: the sensor sees the position through a first-order lag
     di_max: float = 0.0         # slew_rate [A/s] (outside the catalogue; 0 = off)
     A_r: float = 0.0            # sensor_ripple [V] (outside the catalogue; 0 = off)
     lambda_r: float = 5e-4      # its spatial period [m]
@@ -166,6 +167,7 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     i_eq = min(math.sqrt(mg * (c.x_0 - x) ** expo / kc), c.i_max)
     u_hold = (i_eq / c.k_i + (c.u_dz if i_eq > 0 else 0.0) - c.u_0) / c.k_DA
     v, i, F = 0.0, i_eq, force(i_eq, x)
+    xs = x                                   # the position the sensor sees (its lag T_y has settled)
 
     h_max = min(1e-4, c.T_a / 10 if c.T_a > 0 else 1.0, c.T_F / 4 if c.T_F > 0 else 1.0)
     nsub = max(1, int(math.ceil(ts / h_max - 1e-9)))
@@ -206,11 +208,12 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
         return dac[j] if j >= 0 else u_hold_q
 
     def integrate(span: float, u_val: float, steps: int) -> None:
-        nonlocal x, v, i, F
+        nonlocal x, v, i, F, xs
         ic = command(u_val)
         if not lag_i and c.di_max <= 0:
             i = ic
         h = span / steps
+        q_s = math.exp(-h / c.T_y) if c.T_y > 0 else 0.0
         for _ in range(steps):
             if not lag_i and c.di_max > 0:     # slew-limited current
                 i += min(max(ic - i, -c.di_max * h), c.di_max * h)
@@ -237,11 +240,12 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
                 x, v = c.x_max, min(v, 0.0)
             elif x <= c.x_min:
                 x, v = c.x_min, max(v, 0.0)
+            xs = x + (xs - x) * q_s     # the sensor's lag, x held at the substep's end
 
     two_pi_f = 2 * math.pi * c.f_d
     for k in range(n):
         t = k * ts
-        yv = c.k_x * x + c.y_0 + c.k_x2 * x * (x - c.x_cal) + c.A_d * math.sin(two_pi_f * t + c.phi_d)
+        yv = c.k_x * xs + c.y_0 + c.k_x2 * xs * (xs - c.x_cal) + c.A_d * math.sin(two_pi_f * t + c.phi_d)
         if c.A_r:   # a spatially periodic error of the sensor (an optical sensor's fringes)
             yv += c.A_r * math.sin(2 * math.pi * x / c.lambda_r)
         y = c.k_AD * yv + c.y_MU0 + noise_y[k]

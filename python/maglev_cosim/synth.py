@@ -26,6 +26,7 @@ EFFECTS: dict[str, tuple[str, ...]] = {
     "force_exponent": ("n_F",),
     "coulomb_friction": ("F_c",),
     "amplifier_dead_zone": ("u_dz",),
+    "sensor_lag": ("T_y",),
     "slew_rate": ("di_max",),
     "sensor_ripple": ("A_r", "lambda_r"),
 }

@@ -298,6 +298,8 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     _TimeConstant("force_lag", "T_F", 5e-5, "mechanics", "the magnetic force following the static law through a lag T_F "
                   "(eddy currents)"),
     _TimeConstant("delay", "T_d", 0.0, "actuator", "a transport delay T_d of the D/A signal (computation and I/O)"),
+    _TimeConstant("sensor_lag", "T_y", 0.0, "sensor", "a first-order lag T_y through which the sensor sees the position "
+                  "(its electronics' filter)"),
     SensorNonlinearity(),
     CurrentSaturation(),
     PeriodicDisturbance(),
