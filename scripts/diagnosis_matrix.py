@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from maglev_cosim.diagnosis import CATALOGUE, diagnose
+from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
 from maglev_cosim.record import read_record
 from maglev_cosim.synth import draw_disturbance, synth_record
 
@@ -45,6 +46,9 @@ CASES: list[tuple[str, dict]] = [
     ("amplifier_lag T_a=3ms", {"effects": {"amplifier_lag": {"T_a": 0.003}}}),
     ("force_lag T_F=2ms", {"effects": {"force_lag": {"T_F": 0.002}}}),
     ("delay T_d=2.5ms", {"effects": {"delay": {"T_d": 0.0025}}}),
+    ("sensor lag T_y=2ms", {"effects": {"sensor_lag": {"T_y": 0.002}}}),
+    ("sensor lag, all tried", {"effects": {"sensor_lag": {"T_y": 0.002}}}),
+    ("force lag, all tried", {"effects": {"force_lag": {"T_F": 0.002}}}),
     ("sensor k_x2=-3e4", {"effects": {"sensor_nonlinearity": {"k_x2": -30000.0}}}),
     ("saturation i_max=0.85", {"effects": {"current_saturation": {"i_max": 0.85}}}),
     ("pickup 8mV 37Hz", {"effects": {"periodic_disturbance": {"A_d": 0.008, "f_d": 37.0, "phi_d": 1.0}}}),
@@ -61,6 +65,14 @@ CASES: list[tuple[str, dict]] = [
     ("gains 2.5/4/0.008: delay", {"effects": {"delay": {"T_d": 0.0015}}, "kp": 2.5, "ki": 4.0, "kd": 0.008}),
     ("gains 2.5/4/0.008: none", {"kp": 2.5, "ki": 4.0, "kd": 0.008}),
 ]
+
+#: Rows that try other entries than the default (DEFAULT_EFFECTS): the opt-in ones.
+TRIED: dict[str, list[str]] = {
+    "friction F_c=2mN": [*DEFAULT_EFFECTS, "coulomb_friction"],
+    "sensor lag T_y=2ms": [e for e in CATALOGUE if e != "force_lag"],    # its twin left out
+    "sensor lag, all tried": list(CATALOGUE),
+    "force lag, all tried": list(CATALOGUE),
+}
 
 
 def _describe(dist: dict) -> str:
@@ -146,7 +158,7 @@ def main() -> None:
             path = synth_record(Path(tmp) / f"r{k}.csv", seed=a.seed, **kw)
             rec = read_record(path)
             t0 = time.perf_counter()
-            d = diagnose(rec)
+            d = diagnose(rec, effects=TRIED.get(name))
             dt = time.perf_counter() - t0
             est = {p: d.parameters[p] for e in d.selected for p in CATALOGUE[e].params}
             est_s = ", ".join(f"{p}={v:.4g}" for p, v in est.items() if p != "phi_d")

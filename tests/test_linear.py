@@ -94,3 +94,17 @@ def test_state_space_signals_are_named():
     assert (G.name, G.state_labels, G.input_labels, G.output_labels) == ("maglev", ["x", "v", "i"], ["u"], ["y"])
     assert linearize(get_params("baseline").replace(T_F=1e-3)).state_labels == ["x", "v", "F"]
     assert linearize(get_params("section3").replace(T_F=1e-3)).state_labels == ["x", "v", "i", "F"]
+
+
+def test_a_sensor_lag_adds_its_first_order_factor_to_the_transfer_function():
+    """y sees x_s, x through 1/(T_y s + 1) (docs/model.md, item 7): the frequency response is the
+    plant's times that factor, and the lag's state is named."""
+    import control
+
+    p = get_params("section3")
+    base, lagged = linearize(p), linearize(p.replace(T_y=2e-3))
+    assert lagged.state_labels == ["x", "v", "i", "x_s"]
+    w = np.logspace(0, 3.5, 40)
+    h0 = control.frequency_response(base, w).fresp[0, 0]
+    h1 = control.frequency_response(lagged, w).fresp[0, 0]
+    assert np.allclose(h1, h0 / (1j * w * 2e-3 + 1), rtol=1e-9)

@@ -1180,6 +1180,7 @@ static void gen_scenario(Op *op) {
     s[n].vr = VR_T_d, s[n++].v = rchance(0.5) ? 0.0 : rloguni(1e-5, 2e-2);
     s[n].vr = VR_T_F, s[n++].v = rchance(0.6) ? 0.0 : rloguni(1e-6, 1e-2);
     s[n].vr = VR_T_a, s[n++].v = rchance(0.2) ? 0.0 : rloguni(1e-5, 1e-2);
+    s[n].vr = VR_T_y, s[n++].v = rchance(0.6) ? 0.0 : rloguni(1e-7, 1.0);
     s[n].vr = VR_solver_step, s[n++].v = rloguni(1e-6, 1e-3);
     if (rchance(0.3)) s[n].vr = VR_A_d, s[n++].v = rsign() * rloguni(1e-3, 1.0);
     if (rchance(0.3)) s[n].vr = VR_f_d, s[n++].v = rloguni(1.0, 1e5);

@@ -28,7 +28,7 @@ from ..record import Record
 from ..metrics import nrmse_fit
 from ..replay import HORIZON_S, baseline_params, estimate_noise
 from .acceptance import BLOCK, CRITERION, accept
-from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, Parameterization
+from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, Parameterization, twin_warnings
 from .verdict import Verdict, conclude
 from .problem import Problem, cost_on, fit, residuals
 from .residual import analyse_residual, effective_samples, noise_floor
@@ -389,7 +389,7 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
         The closed-loop record.
     effects : sequence of str, optional
         The catalogue entries to consider (default: :data:`~.effects.DEFAULT_EFFECTS`, the
-        catalogue but for the opt-in ``coulomb_friction``).
+        catalogue but for the opt-in ``coulomb_friction`` and ``sensor_lag``).
     workers : int, optional
         Processes for the candidate fits (default: 2, or 1 on a one-core machine).
     progress : callable, optional
@@ -438,6 +438,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
     final = {**base, **final_values}
     verdict = conclude(rec, {**base, **cal.values}, final, {"before": cal.sim, "after": sim_after}, found.selected,
                        found.candidates, say)
+    verdict.warnings.extend(twin_warnings(found.selected, effects))
     say(f"verdict: {verdict.verdict}; fit y/u free run {verdict.fit['free_run']['y']:.1f}/"
         f"{verdict.fit['free_run']['u']:.1f} %, {HORIZON_S * 1e3:.0f} ms prediction "
         f"{verdict.fit['prediction']['y']:.1f}/{verdict.fit['prediction']['u']:.1f} %")
