@@ -528,6 +528,9 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
             if (Ty > 0) { /* x over the substep as the cubic through its ends' positions and velocities */
                 double dx = s.x - xa, c2 = 3 * dx - (2 * va + s.v) * h, c3 = -2 * dx + (va + s.v) * h;
                 xs = ws[0] * xs + ws[1] * xa + ws[2] * va * h + ws[3] * c2 + ws[4] * c3;
+                /* an average of positions between the stops stays there; the cubic may not (an
+                 * impact inside the substep), nor rounding */
+                xs = clip(xs, P(m, x_min), P(m, x_max));
             }
             E *= q;
         }
