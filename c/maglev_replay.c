@@ -229,43 +229,6 @@ int maglev_replay_control(const MaglevController *c, const double *w, const doub
     return 0;
 }
 
-int maglev_replay_closed_loop(const double *params, const MaglevController *c, const double *w, size_t n,
-                              double u_hold, double *u, double *y, double *x, double *v, double *i,
-                              char *msg, size_t len) {
-    MaglevPlant m;
-    if (ctl_check(c, u_hold, msg, len)) return -1;
-    if (setup(&m, params, u_hold, msg, len)) {
-        maglev_release(&m, &maglev_std_allocator);
-        return -1;
-    }
-    const double x0[3] = {m.x, m.v, maglev_get(&m, VR_i)};
-    CtlState cs;
-    ctl_start(c, &cs, u_hold, x0, n ? w[0] : 0.0);
-    double t = 0.0;
-    int rc = 0;
-    for (size_t k = 0; k < n; k++) {
-        if (!isfinite(w[k])) {
-            snprintf(msg, len, "reference w[%zu] = %g is not finite", k, w[k]);
-            rc = -1;
-            break;
-        }
-        double yk;
-        sample(&m, k, y, x, v, i, &yk);
-        double uk = ctl_step(c, &cs, w[k], yk, maglev_get(&m, VR_i));
-        if (u) u[k] = uk;
-        /* the FMU's clock: the master adds ts to the previous communication point */
-        m.time = t;
-        if (maglev_set_input(&m, uk, &maglev_std_allocator, msg, len) ||
-            maglev_step(&m, c->pid.ts, &maglev_std_allocator, msg, len)) {
-            rc = -1;
-            break;
-        }
-        t += c->pid.ts;
-    }
-    maglev_release(&m, &maglev_std_allocator);
-    return rc;
-}
-
 int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, double ts, double *y,
                             double *x, double *v, double *i, char *msg, size_t len) {
     MaglevPlant m;
@@ -364,6 +327,58 @@ static int advance(MaglevPlant *m, double u, double d, double ts, char *msg, siz
         if (!(maglev_param(m, VR_T_y) > 0)) m->xs = m->x; /* a lag's xs moves with x in the next steps */
     }
     return 0;
+}
+
+int maglev_replay_closed_loop_injected(const double *params, const MaglevController *c, const double *w, size_t n,
+                                       double u_hold, const double *du, const double *dF, const double *dy,
+                                       double *u, double *y, double *x, double *v, double *i, char *msg,
+                                       size_t len) {
+    MaglevPlant m;
+    if (ctl_check(c, u_hold, msg, len)) return -1;
+    for (size_t k = 0; k < n; k++)
+        if ((du && !isfinite(du[k])) || (dF && !isfinite(dF[k])) || (dy && !isfinite(dy[k]))) {
+            snprintf(msg, len, "sample %zu: an injected signal (du, dF or dy) is not finite", k);
+            return -1;
+        }
+    if (setup(&m, params, u_hold, msg, len)) {
+        maglev_release(&m, &maglev_std_allocator);
+        return -1;
+    }
+    const double x0[3] = {m.x, m.v, maglev_get(&m, VR_i)};
+    CtlState cs;
+    ctl_start(c, &cs, u_hold, x0, n ? w[0] : 0.0);
+    double t = 0.0;
+    int rc = 0;
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(w[k])) {
+            snprintf(msg, len, "reference w[%zu] = %g is not finite", k, w[k]);
+            rc = -1;
+            break;
+        }
+        double yk;
+        sample(&m, k, y, x, v, i, &yk);
+        if (dy) {
+            yk += dy[k];
+            if (y) y[k] = yk;
+        }
+        double uk = ctl_step(c, &cs, w[k], yk, maglev_get(&m, VR_i));
+        if (u) u[k] = uk;
+        /* the FMU's clock: the master adds ts to the previous communication point */
+        m.time = t;
+        if (advance(&m, du ? uk + du[k] : uk, dF ? dF[k] : 0.0, c->pid.ts, msg, len)) {
+            rc = -1;
+            break;
+        }
+        t += c->pid.ts;
+    }
+    maglev_release(&m, &maglev_std_allocator);
+    return rc;
+}
+
+int maglev_replay_closed_loop(const double *params, const MaglevController *c, const double *w, size_t n,
+                              double u_hold, double *u, double *y, double *x, double *v, double *i,
+                              char *msg, size_t len) {
+    return maglev_replay_closed_loop_injected(params, c, w, n, u_hold, NULL, NULL, NULL, u, y, x, v, i, msg, len);
 }
 
 /* The Kalman update with one scalar measurement whose row of H has the single entry h at state j:

@@ -67,6 +67,16 @@ int maglev_replay_closed_loop(const double *params, const MaglevController *c, c
                               double u_hold, double *u, double *y, double *x, double *v, double *i,
                               char *msg, size_t msglen);
 
+/* The same closed loop with signals injected at the three places a model error can enter (each
+ * may be NULL): du[k] [MU] added to the controller's output on its way to the plant (actuator),
+ * dF[k] [N] a force on the ball held over sample k (mechanics, as the filter's random force), dy[k]
+ * [MU] added to the reading the controller sees and y reports (sensor). u reports the
+ * controller's output. Used to locate a residual no catalogue effect explains. */
+int maglev_replay_closed_loop_injected(const double *params, const MaglevController *c, const double *w, size_t n,
+                                       double u_hold, const double *du, const double *dF, const double *dy,
+                                       double *u, double *y, double *x, double *v, double *i, char *msg,
+                                       size_t msglen);
+
 /* Prediction-error replay: an extended Kalman filter on the plant above, driven by the measured
  * input u, corrects the state with each measured reading y, and from every stride-th sample
  * predicts the closed loop horizon samples ahead (plant + controller on the predicted readings

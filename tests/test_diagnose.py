@@ -111,7 +111,6 @@ def test_a_force_lag_and_a_sensor_lag_name_their_twin(tmp_path_factory):
         assert any(other in w and "not tried" in w for w in d.warnings), d.warnings
 
 
-
 @pytest.mark.parametrize("name", list(OUTSIDE))
 def test_effect_outside_the_catalogue_is_reported_honestly(name, tmp_path_factory):
     """The report never names an effect it does not have, and its before/after figures are what

@@ -116,15 +116,19 @@ def _controller(m: SimpleNamespace, controller):
 
 
 def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray, *,
-                pid: Controller | None = None, u_hold: float | None = None) -> dict[str, np.ndarray]:
+                pid: Controller | None = None, u_hold: float | None = None, du: np.ndarray | None = None,
+                dF: np.ndarray | None = None, dy: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The closed loop (plant + controller) over reference ``w`` [MU] in one C call: the low
     level of :func:`maglev_cosim.loop.simulate` (``backend="fast"``), which most callers want.
 
     ``params``: a :class:`PlantParams` or FMU parameter values over the C defaults, the start
     state included. ``pid``: the controller, any :data:`maglev_cosim.controllers.Controller`
     (default: the paper's PID, Eq. 24/25). ``u_hold`` [MU]: the settled
-    input before t = 0 (default: the equilibrium input at ``x_start``). Returns arrays ``t`` [s],
-    ``w``, ``u``, ``y`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A]."""
+    input before t = 0 (default: the equilibrium input at ``x_start``). ``du`` [MU], ``dF`` [N],
+    ``dy`` [MU]: signals injected at the actuator (added to the controller's output on its way to
+    the plant), on the ball (a force held over each sample) and at the sensor (added to the
+    reading), each of the length of ``w`` or None. Returns arrays ``t`` [s], ``w``, ``u`` (the
+    controller's output), ``y`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A]."""
     from .pid import PID
 
     m = _lib()
@@ -138,8 +142,17 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
     cpid = _controller(m, pid)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    rc = m.lib.maglev_replay_closed_loop(ptr(pv), cpid, ptr(w), n, float(u_hold), *(ptr(out[k]) for k in
-                                         ("u", "y", "x", "v", "i")), msg, 256)
+    inj = []
+    for name, a in (("du", du), ("dF", dF), ("dy", dy)):
+        if a is None:
+            inj.append(m.ffi.NULL)
+            continue
+        a = np.ascontiguousarray(a, dtype=float)
+        if a.shape != (n,):
+            raise ValueError(f"{name} has shape {a.shape}, the reference has {n} samples")
+        inj.append(ptr(a))
+    rc = m.lib.maglev_replay_closed_loop_injected(ptr(pv), cpid, ptr(w), n, float(u_hold), *inj,
+                                                  *(ptr(out[k]) for k in ("u", "y", "x", "v", "i")), msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return {"t": np.arange(n) * pid.ts, "w": w, **out}

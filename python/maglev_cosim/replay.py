@@ -52,6 +52,17 @@ def replay(rec: Record, params: Mapping[str, float], *, w: np.ndarray | None = N
     return r.signals()
 
 
+
+def replay_injected(rec: Record, params: Mapping[str, float], *, du: np.ndarray | None = None,
+                    dF: np.ndarray | None = None, dy: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """:func:`replay` with signals injected where a model error can enter the loop: ``du`` [MU]
+    added to the controller's output on its way to the plant (actuator), ``dF`` [N] a force on the
+    ball held over each sample (mechanics), ``dy`` [MU] added to the reading (sensor); each one
+    value per sample, or None. Same start as :func:`replay`; with no injection the same result."""
+    p, x_op = _settled_at_first_reading(rec, params)
+    start, u_hold = settled_start(p, x_op)
+    return fast.closed_loop(start, rec.w, pid=record_controller(rec), u_hold=u_hold, du=du, dF=dF, dy=dy)
+
 # ----------------------------------------------------------------------------- prediction-error replay
 
 @dataclass(frozen=True)

@@ -248,7 +248,51 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
     fig.savefig(out / "resid.png", dpi=110)
     plt.close(fig)
     files.append("resid.png")
+    if d.verdict is not None and d.verdict.corrections:
+        files.append(_location_plot(d.verdict.corrections, out, plt))
     return files
+
+
+_SIGNAL_AXIS = {"u": ("controller output u [MU]", 1.0), "x": ("ball position x [mm]", 1e3),
+                "y": ("reading y [MU]", 1.0), "F": ("force F [N]", 1.0), "i": ("current i [A]", 1.0)}
+
+
+def _location_plot(corrections, out: Path, plt) -> str:
+    """The best generic correction at each location: the spline's curve over its signal, or the
+    filter's frequency response; its held-out gain in the title."""
+    from .diagnosis.locate import LOCATIONS
+
+    best = {}
+    for c in corrections:
+        if c.location not in best or c.held_out_gain > best[c.location].held_out_gain:
+            best[c.location] = c
+    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
+    for a, loc in zip(ax, LOCATIONS):
+        c = best.get(loc)
+        if c is None:
+            a.set_axis_off()
+            continue
+        sh = c.shape
+        if sh["kind"] == "curve":
+            label, k = _SIGNAL_AXIS[sh["signal"]]
+            a.plot(np.asarray(sh["x"]) * k, sh["correction"], color="tab:red")
+            a.set_xlabel(label)
+            a.set_ylabel(f"correction [{c.unit}]")
+        else:
+            a.semilogx(sh["f_hz"], sh["phase_deg"], color="tab:red", label="phase [deg]")
+            a.set_xlabel("frequency [Hz]")
+            a.set_ylabel(f"phase of the filter on {sh['signal']} [deg]")
+            b = a.twinx()
+            b.semilogx(sh["f_hz"], sh["magnitude"], color="tab:blue")
+            b.set_ylabel("gain", color="tab:blue")
+        a.set_title(f"{loc}: {c.form} in {c.signal}, removes {100 * c.held_out_gain:.1f} %\nof the held-out "
+                    "residual", fontsize=9)
+        a.grid(alpha=0.3)
+    fig.suptitle("Where the residual enters: the best generic correction at each place in the loop")
+    fig.tight_layout()
+    fig.savefig(out / "location.png", dpi=110)
+    plt.close(fig)
+    return "location.png"
 
 
 def _fmt(v: float) -> str:
@@ -324,6 +368,16 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
               "to it); random forces on the ball add to what noise leaves in y.", ""]
     if d.unexplained.get("note"):
         lines += [f"Note: {d.unexplained['note']}.", ""]
+    if d.verdict is not None and d.verdict.corrections:
+        lines += ["### Where the residual enters", "",
+                  "A generic correction of the final model at each place in the loop (a cubic spline of the "
+                  "local signal, or a low-order filter of it), fitted on the fit blocks and judged on the "
+                  "held-out ones (`location.png` shows the best at each place):", "",
+                  "| location | form | signal | held-out residual removed | on the fit blocks |", "|---|---|---|---|---|"]
+        for c in d.verdict.corrections:
+            lines.append(f"| {c.location} | {c.form} | {c.signal} | {100 * c.held_out_gain:.1f} % | "
+                         f"{100 * c.fit_gain:.1f} % |")
+        lines.append("")
     if d.selected:
         lines += ["### Estimated effect parameters (±1 standard error)", "", "| parameter | value | ± | unit |",
                   "|---|---|---|---|"]

@@ -437,7 +437,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
     unexplained = summarise(rec, after, residual_after, noise, found.candidates, found.rounds)
     final = {**base, **final_values}
     verdict = conclude(rec, {**base, **cal.values}, final, {"before": cal.sim, "after": sim_after}, found.selected,
-                       found.candidates, say)
+                       found.candidates, say, fit_mask=fit_mask, noise_levels=noise)
     verdict.warnings.extend(twin_warnings(found.selected, effects))
     say(f"verdict: {verdict.verdict}; fit y/u free run {verdict.fit['free_run']['y']:.1f}/"
         f"{verdict.fit['free_run']['u']:.1f} %, {HORIZON_S * 1e3:.0f} ms prediction "

@@ -18,9 +18,11 @@ The verdict (``diagnosis.json``'s ``verdict``):
 - ``calibration failed`` when a calibrated parameter of the final model ends on its bound;
 - ``unexplained: <location>`` when the final model's innovations keep a predictable share above
   :data:`UNEXPLAINED_SHARE`, or its k-step prediction fits y worse than :data:`MIN_PREDICTION_FIT`;
-  the location is where the catalogue's corrections (grouped by where they act on the loop:
-  ``actuator``, ``mechanics``, ``sensor``) reduced the held-out cost most, or ``undetermined``
-  when none did;
+  the location is where a generic correction of the final model (:mod:`.locate`: a spline of the
+  local signal or a low-order filter, at the actuator, the mechanics or the sensor) removes most
+  of the held-out residual; when none removes 5 %, where the catalogue's corrections (grouped by
+  where they act on the loop) reduced the held-out cost most; else ``undetermined``. A location
+  whose best correction comes within 80 % of the winner's is named in a warning;
 - ``explained`` when effects were selected and the model is consistent, ``no effect`` when the
   calibrated baseline already is.
 """
@@ -36,6 +38,7 @@ from ..metrics import nrmse_fit
 from ..record import Record
 from ..replay import HORIZON_S, NoiseModel, estimate_noise, predict
 from .effects import BASELINE, CATALOGUE
+from .locate import generic_corrections, locate
 
 #: Lags [samples] of the innovation ARX fit.
 ARX_LAGS = 10
@@ -128,18 +131,23 @@ class Verdict:
     location_evidence: dict[str, dict]
     before: ModelFigures
     after: ModelFigures
+    corrections: list = field(default_factory=list)     # generic corrections (locate.Correction)
 
     def to_json(self) -> dict:
         return {"verdict": self.verdict, "fit": self.fit, "fit_before": self.fit_before, "warnings": self.warnings,
                 "noise_model": self.noise.to_json(), "noise_model_before": self.noise_before.to_json(),
                 "innovations_predictable_share": self.predictable_share,
-                "location_evidence": self.location_evidence}
+                "location_evidence": self.location_evidence,
+                "generic_corrections": [c.to_json() for c in self.corrections]}
 
 
 def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, float],
              sims: Mapping[str, Mapping[str, np.ndarray]], selected: Sequence[str], candidates: Sequence[dict],
-             say=lambda s: None) -> Verdict:
-    """Figures of both models, the warnings and the verdict."""
+             say=lambda s: None, fit_mask: np.ndarray | None = None,
+             noise_levels: Mapping[str, float] | None = None) -> Verdict:
+    """Figures of both models, the warnings and the verdict. With ``fit_mask`` and
+    ``noise_levels`` (``sigma_y``, ``rms_u_from_sensor_noise`` [MU]) the generic corrections of
+    :mod:`.locate` are fitted too, and an ``unexplained`` verdict names the location they find."""
     say("estimating the record's disturbances (random force on the ball, sensor noise) from the filter's "
         "innovations, for the calibrated baseline and the final model")
     noise_before = estimate_noise(rec, baseline)
@@ -169,11 +177,33 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
             evidence[loc] = {"effect": c["effect"], "held_out_gain": float(c["held_out_gain"])}
     share = after.predictable_share
     lacking = share > UNEXPLAINED_SHARE or after.prediction["y"] < MIN_PREDICTION_FIT
+    corrections: list = []
+    generic_location, rivals, per_location = "undetermined", [], {}
+    if fit_mask is not None and noise_levels and noise_levels.get("sigma_y", 0) > 0 \
+            and noise_levels.get("rms_u_from_sensor_noise", 0) > 0:
+        say("fitting generic corrections (a spline of the local signal, a low-order filter) at the actuator, "
+            "the mechanics and the sensor, judged on the held-out blocks")
+        try:
+            corrections = generic_corrections(rec, final, fit_mask, scale_y=noise_levels["sigma_y"],
+                                              scale_u=noise_levels["rms_u_from_sensor_noise"], base=sims["after"])
+        except ValueError as exc:     # a correction the plant refuses (a free run that fails)
+            warnings.append(f"the generic corrections could not be fitted: {exc}")
+        generic_location, per_location, rivals = locate(corrections)
+        for loc, fig in per_location.items():
+            say(f"  {loc}: best {fig['form']} correction in {fig['signal']} removes "
+                f"{100 * fig['held_out_gain']:.1f} % of the held-out residual")
     if bounds:
         verdict = "calibration failed"
     elif lacking:
         best = max(evidence.items(), key=lambda kv: kv[1]["held_out_gain"], default=None)
         location = best[0] if best and best[1]["held_out_gain"] > 0 else "undetermined"
+        if generic_location != "undetermined":
+            location = generic_location
+            if rivals:
+                figs = ", ".join(f"the {r} {100 * per_location[r]['held_out_gain']:.1f} %" for r in rivals)
+                warnings.append(f"where the residual enters is weakly determined: a generic correction at the "
+                                f"{location} removes {100 * per_location[location]['held_out_gain']:.1f} % of the "
+                                f"held-out residual, at {figs}; the record does not separate them")
         verdict = f"unexplained: {location}"
         warnings.append(f"the final model leaves {100 * share:.1f} % of the filter's innovations predictable from "
                         f"their past and the input (consistent: below {100 * UNEXPLAINED_SHARE:.0f} %), and its "
@@ -183,4 +213,4 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     else:
         verdict = "explained" if selected else "no effect"
     return Verdict(verdict, after.to_json(), before.to_json(), warnings, noise, noise_before,
-                   {"before": before.predictable_share, "after": share}, evidence, before, after)
+                   {"before": before.predictable_share, "after": share}, evidence, before, after, corrections)

@@ -1,0 +1,60 @@
+"""Generic corrections locate where a residual enters the loop (issue 7, item 5;
+maglev_cosim.diagnosis.locate). Emulator records (rig.py, written apart from the C plant) against
+the nominal model, which is the emulator's own physics without the planted effect."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maglev_cosim.diagnosis.locate import LOCATIONS, generic_corrections, locate
+from maglev_cosim.diagnosis.pipeline import BLOCK
+from maglev_cosim.diagnosis.residual import noise_floor
+from maglev_cosim.record import read_record
+from maglev_cosim.replay import baseline_params, replay, replay_injected
+from maglev_cosim.synth import synth_record
+
+
+def _located(tmp_path, effects):
+    rec = read_record(synth_record(tmp_path / "r.csv", effects=effects, seed=21, duration=8.0), plausibility="warn")
+    nf = noise_floor(rec)
+    mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    cs = generic_corrections(rec, baseline_params(), mask, scale_y=nf["sigma_y"],
+                             scale_u=nf["rms_u_from_sensor_noise"])
+    assert {c.location for c in cs} == set(LOCATIONS) and len(cs) == 6
+    return locate(cs), cs
+
+
+@pytest.mark.parametrize("effects, where", [
+    ({"sensor_ripple": {"A_r": 0.02, "lambda_r": 5e-4}}, "sensor"),     # outside the catalogue
+    ({"current_saturation": {"i_max": 0.85}}, "actuator"),
+    ({}, "undetermined"),
+])
+def test_a_static_error_is_located_where_it_enters(tmp_path, effects, where):
+    (location, best, _), cs = _located(tmp_path, effects)
+    assert location == where, [(c.location, c.form, round(c.held_out_gain, 3)) for c in cs]
+    if where == "sensor":    # the ripple is a static curve of the position: the spline finds it
+        assert best[where]["form"] == "static"
+        top = next(c for c in cs if c.location == where and c.form == "static")
+        assert top.shape["kind"] == "curve" and len(top.shape["x"]) == len(top.shape["correction"])
+        assert top.held_out_gain > 0.1
+
+
+def test_injection_enters_where_it_says(tmp_path):
+    """No injection is the plain replay, bit for bit; a reading offset moves what the controller
+    sees (the loop pulls the ball the other way), a force on the ball moves it, an input offset
+    moves the current."""
+    rec = read_record(synth_record(tmp_path / "r.csv", seed=3, duration=2.0), plausibility="warn")
+    p = baseline_params()
+    base = replay(rec, p)
+    same = replay_injected(rec, p)
+    assert all(np.array_equal(base[k], same[k]) for k in ("u", "y", "x", "v", "i"))
+    n = rec.n
+    up = replay_injected(rec, p, dy=np.full(n, 0.01))
+    assert np.mean(up["x"][-500:] - base["x"][-500:]) < -1e-5          # the loop answers a reading offset
+    push = replay_injected(rec, p, dF=np.full(n, 1e-3))
+    assert np.mean(push["u"][-500:] - base["u"][-500:]) < 0             # less current holds a lifted ball
+    amp = replay_injected(rec, p, du=np.full(n, 0.01))
+    assert np.mean(amp["u"][-500:] - base["u"][-500:]) == pytest.approx(-0.01, rel=0.05)   # the PID takes it back
+    with pytest.raises(ValueError, match="samples"):
+        replay_injected(rec, p, du=np.zeros(n - 1))
