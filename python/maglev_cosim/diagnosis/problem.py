@@ -16,6 +16,11 @@ from ..replay import HORIZON_S, NoiseModel, horizon_samples, predict, replay
 if TYPE_CHECKING:
     from .effects import Parameterization
 
+#: Largest RK4 substep [s] of the replays the fits run. Against the default 0.1 ms, on a 12 s record
+#: with each catalogue lag, delay or exponent: at most 1.7e-8 MU in y and 2.1e-7 MU in u (a
+#: thousandth of the sensor noise and of u's noise response), and each replay 1.7 times faster.
+FIT_SOLVER_STEP = 2.5e-4
+
 
 @dataclass
 class Problem:
@@ -42,10 +47,13 @@ class Problem:
 
     def simulate(self, values: Mapping[str, float]) -> dict[str, np.ndarray]:
         """What the fits compare with the record: ``y`` and ``u`` of the free run, or of the
-        ``HORIZON_S`` prediction (NaN where no prediction ends) in prediction mode."""
+        ``HORIZON_S`` prediction (NaN where no prediction ends) in prediction mode; on RK4
+        substeps of at most :data:`FIT_SOLVER_STEP` (the figures reported use the plant's own)."""
+        vals = {**self.base, **values}
+        vals["solver_step"] = max(vals.get("solver_step", FIT_SOLVER_STEP), FIT_SOLVER_STEP)
         if self.noise is None:
-            return self.free_run(values)
-        pr = predict(self.rec, {**self.base, **values}, self.noise, stride=self.stride, horizon_s=self.horizon_s)
+            return replay(self.rec, vals)
+        pr = predict(self.rec, vals, self.noise, stride=self.stride, horizon_s=self.horizon_s)
         return {"y": pr["y_pred"], "u": pr["u_pred"]}
 
     def compared(self) -> np.ndarray:

@@ -146,8 +146,9 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
              say=lambda s: None, fit_mask: np.ndarray | None = None,
              noise_levels: Mapping[str, float] | None = None) -> Verdict:
     """Figures of both models, the warnings and the verdict. With ``fit_mask`` and
-    ``noise_levels`` (``sigma_y``, ``rms_u_from_sensor_noise`` [MU]) the generic corrections of
-    :mod:`.locate` are fitted too, and an ``unexplained`` verdict names the location they find."""
+    ``noise_levels`` (``sigma_y``, ``rms_u_from_sensor_noise`` [MU]), when the final model lacks
+    something, the generic corrections of :mod:`.locate` are fitted too, and the ``unexplained``
+    verdict names the location they find."""
     say("estimating the record's disturbances (random force on the ball, sensor noise) from the filter's "
         "innovations, for the calibrated baseline and the final model")
     noise_before = estimate_noise(rec, baseline)
@@ -179,7 +180,7 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     lacking = share > UNEXPLAINED_SHARE or after.prediction["y"] < MIN_PREDICTION_FIT
     corrections: list = []
     generic_location, rivals, per_location = "undetermined", [], {}
-    if fit_mask is not None and noise_levels and noise_levels.get("sigma_y", 0) > 0 \
+    if lacking and not bounds and fit_mask is not None and noise_levels and noise_levels.get("sigma_y", 0) > 0 \
             and noise_levels.get("rms_u_from_sensor_noise", 0) > 0:
         say("fitting generic corrections (a spline of the local signal, a low-order filter) at the actuator, "
             "the mechanics and the sensor, judged on the held-out blocks")
