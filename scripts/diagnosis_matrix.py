@@ -152,7 +152,8 @@ def main() -> None:
             Path(a.json).write_text(json.dumps(res, indent=2, default=float))
         return
     rows = []
-    print(f"{'record':<26}{'selected':<38}{'estimates':<46}{'before y/u [MU]':<20}{'after y/u [MU]':<20}{'s':>5}")
+    print(f"{'record':<26}{'selected':<38}{'estimates':<46}{'before y/u [MU]':<20}{'after y/u [MU]':<20}"
+          f"{'after u/noise':>14}{'s':>6}  verdict")
     with tempfile.TemporaryDirectory() as tmp:
         for k, (name, kw) in enumerate(CASES):
             path = synth_record(Path(tmp) / f"r{k}.csv", seed=a.seed, **kw)
@@ -161,12 +162,14 @@ def main() -> None:
             d = diagnose(rec, effects=TRIED.get(name))
             dt = time.perf_counter() - t0
             est = {p: d.parameters[p] for e in d.selected for p in CATALOGUE[e].params}
+            over = d.after["rms_u"] / d.noise["rms_u_from_sensor_noise"]
             est_s = ", ".join(f"{p}={v:.4g}" for p, v in est.items() if p != "phi_d")
             print(f"{name:<26}{','.join(d.selected) or '-':<38}{est_s:<46}"
                   f"{d.before['rms_y']:.5f}/{d.before['rms_u']:.5f}   {d.after['rms_y']:.5f}/{d.after['rms_u']:.5f}"
-                  f"   {dt:5.1f}", flush=True)
+                  f"   {over:11.2f}  {dt:5.1f}  {d.verdict.verdict}", flush=True)
             rows.append({"record": name, "truth": kw, "selected": d.selected, "estimates": est,
-                         "before": d.before, "after": d.after, "seconds": dt, "note": d.unexplained["note"]})
+                         "before": d.before, "after": d.after, "after_u_over_noise": over, "seconds": dt,
+                         "verdict": d.verdict.verdict, "note": d.unexplained["note"]})
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=2))
 
