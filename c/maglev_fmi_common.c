@@ -91,7 +91,19 @@ int mf_uri_to_path(const char *uri, char *out, size_t len) {
     }
     if (*p) return -1;
     out[n] = 0;
+#ifdef _WIN32
+    /* file:///C:/dir is the path C:/dir on Windows (RFC 8089), not /C:/dir */
+    if (n >= 3 && out[0] == '/' && isalpha((unsigned char)out[1]) && out[2] == ':') memmove(out, out + 1, n);
+#endif
     return 0;
+}
+
+/* A path separator: '/', and on Windows '\\' too (an FMI 3.0 resourcePath there ends with one). */
+static int is_separator(char c) {
+#ifdef _WIN32
+    if (c == '\\') return 1;
+#endif
+    return c == '/';
 }
 
 #define GUID_FILE "guid.txt"
@@ -100,7 +112,7 @@ int mf_accepted_guid(const char *dir, char *guid, size_t glen, char *msg, size_t
     snprintf(guid, glen, "%s", MAGLEV_GUID);
     if (!dir) return 0;
     size_t n = strlen(dir);
-    while (n > 0 && dir[n - 1] == '/') n--;
+    while (n > 0 && is_separator(dir[n - 1])) n--;
     if (n + 1 + sizeof GUID_FILE > sizeof path) return 0;
     memcpy(path, dir, n);
     path[n] = '/';
@@ -127,7 +139,7 @@ static int load_start_values(MaglevPlant *m, const char *dir, char *msg, size_t 
     char path[4096];
     if (!dir) return 0;
     size_t n = strlen(dir);
-    while (n > 0 && dir[n - 1] == '/') n--;
+    while (n > 0 && is_separator(dir[n - 1])) n--;
     if (n + 1 + sizeof START_VALUES_FILE > sizeof path) return 0;
     memcpy(path, dir, n);
     path[n] = '/';

@@ -4,6 +4,7 @@ with ``pip install .``; ``python/`` is not on ``sys.path``): its FMU is ``maglev
 
 from __future__ import annotations
 
+import sys
 import zipfile
 from pathlib import Path
 
@@ -12,6 +13,15 @@ import pytest
 import maglev_cosim
 
 REPO = Path(__file__).resolve().parents[1]
+#: The suffix of this platform's FMU binaries: an FMU carries several (linux64 and win64).
+HOST_SUFFIX = {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
+
+
+def host_binary(z: zipfile.ZipFile, model_identifier: str) -> str:
+    """The name in an FMU archive of this platform's binary of ``model_identifier``."""
+    names = [n for n in z.namelist() if n.startswith("binaries/") and n.endswith("/" + model_identifier + HOST_SUFFIX)]
+    assert len(names) == 1, f"expected one {model_identifier}{HOST_SUFFIX} in {z.filename}, found {names}"
+    return names[0]
 
 
 @pytest.fixture(scope="session")
@@ -23,9 +33,7 @@ def fmu_path() -> Path:
 def fmu_binary(fmu_path: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The FMU's shared library, extracted from the archive."""
     with zipfile.ZipFile(fmu_path) as z:
-        names = [n for n in z.namelist() if n.startswith("binaries/") and Path(n).stem == "maglev"]
-        assert names, f"no binary in {fmu_path}"
-        return Path(z.extract(names[0], tmp_path_factory.mktemp("fmu_binary")))
+        return Path(z.extract(host_binary(z, "maglev"), tmp_path_factory.mktemp("fmu_binary")))
 
 
 @pytest.fixture(scope="session")

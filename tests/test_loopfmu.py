@@ -13,6 +13,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
+from conftest import host_binary
 from maglev_cosim._resources import pid_fmu_path
 from maglev_cosim.loop import reference_signal, simulate
 from maglev_cosim.loopfmu import STOP, loop_settings, write_container, write_ssp
@@ -23,8 +24,7 @@ from maglev_cosim.pid import PID
 @pytest.fixture(scope="module")
 def pid_binary(tmp_path_factory) -> Path:
     with zipfile.ZipFile(pid_fmu_path()) as z:
-        name = next(n for n in z.namelist() if n.startswith("binaries/") and Path(n).stem == "maglev_pid")
-        return Path(z.extract(name, tmp_path_factory.mktemp("pid_binary")))
+        return Path(z.extract(host_binary(z, "maglev_pid"), tmp_path_factory.mktemp("pid_binary")))
 
 
 def test_pid_description_is_what_its_c_table_generates(repo, pid_binary):

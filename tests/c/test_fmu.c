@@ -7,6 +7,11 @@
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
+#ifdef _WIN32 /* the Windows build (cross-compiled with mingw-w64, run under wine): its own temporary folder */
+#include <direct.h>
+#include <process.h>
+#include <windows.h>
+#endif
 
 #include "fmi2Functions.h"
 #include "maglev_plant.h"
@@ -771,10 +776,35 @@ static void write_file(const char *path, const char *text) {
     fclose(fp);
 }
 
+/* A new folder: dir, with '/' separators; NULL when it cannot be made. */
+static char *make_temp_dir(char *dir, size_t len) {
+#ifdef _WIN32
+    char base[MAX_PATH + 1];
+    DWORD n = GetTempPathA(sizeof base, base); /* ends with a separator */
+    if (n == 0 || n >= sizeof base) return NULL;
+    snprintf(dir, len, "%smaglev_guid_%d", base, _getpid());
+    for (char *p = dir; *p; p++)
+        if (*p == '\\') *p = '/';
+    return _mkdir(dir) == 0 ? dir : NULL;
+#else
+    snprintf(dir, len, "/tmp/maglev_guid_XXXXXX");
+    return mkdtemp(dir);
+#endif
+}
+
+static void remove_dir(const char *dir) {
+#ifdef _WIN32
+    _rmdir(dir);
+#else
+    rmdir(dir);
+#endif
+}
+
 static void test_issued_guid(void) {
-    char dir[] = "/tmp/maglev_guid_XXXXXX", uri[64], file[64];
-    CHECK(mkdtemp(dir) != NULL, "mkdtemp failed");
-    snprintf(uri, sizeof uri, "file://%s", dir);
+    char dir[512], uri[600], file[600];
+    CHECK(make_temp_dir(dir, sizeof dir) != NULL, "cannot make a temporary folder");
+    /* file:///tmp/x on Linux, file:///C:/x on Windows (mf_uri_to_path turns it into C:/x) */
+    snprintf(uri, sizeof uri, "file://%s%s", dir[0] == '/' ? "" : "/", dir);
     snprintf(file, sizeof file, "%s/guid.txt", dir);
     const char *issued = "{0b6c2a8e-1111-5222-8333-444455556666}";
     write_file(file, "{0b6c2a8e-1111-5222-8333-444455556666}\n");
@@ -789,7 +819,7 @@ static void test_issued_guid(void) {
     CHECK(fmi2Instantiate("cal", fmi2CoSimulation, GUID, uri, &callbacks, 0, 0) == NULL && logged("resources/guid.txt"),
           "a guid.txt without a GUID accepted: %s", last_log);
     remove(file);
-    rmdir(dir);
+    remove_dir(dir);
     /* no guid.txt: the built-in GUID, as before */
     c = fmi2Instantiate("nominal", fmi2CoSimulation, GUID, uri, &callbacks, 0, 0);
     CHECK(c != NULL, "built-in GUID refused without guid.txt: %s", last_log);
