@@ -41,7 +41,8 @@ def test_installed_c_sources_and_model_description_are_the_repository_ones(repo)
 def test_installed_fmu_carries_the_repository_model_description_and_sources(repo, version, xml, glue):
     with zipfile.ZipFile(maglev_cosim.fmu_path(fmi_version=version)) as z:
         assert z.read("modelDescription.xml") == (repo / xml).read_bytes(), STALE
-        for name in (glue, "maglev_fmi_common.c", "maglev_fmi_common.h", "maglev_plant.c", "maglev_plant.h"):
+        for name in (glue, "maglev_fmi_common.c", "maglev_fmi_common.h", "maglev_fmi2_me_stubs.h", "maglev_plant.c",
+                     "maglev_plant.h"):
             assert z.read(f"sources/{name}") == (repo / "c" / name).read_bytes(), f"{name}: {STALE}"
 
 
