@@ -165,6 +165,7 @@ def linux_reference() -> np.ndarray:
 
 @needs_mingw
 @needs_wine
+@pytest.mark.slow   # wine takes 20 s: scripts/test.sh runs these in its Windows step
 @pytest.mark.parametrize("case", ["fmi2", "fmi3", "fmi2+pid_fmu"])
 def test_wine_closed_loop_matches_linux(case, wine_runs, extracted, linux_reference):
     """The closed-loop step, 1 s at the paper's 1 kHz: maglev.dll under wine against maglev.so."""
@@ -183,6 +184,7 @@ def test_wine_closed_loop_matches_linux(case, wine_runs, extracted, linux_refere
 
 @needs_mingw
 @needs_wine
+@pytest.mark.slow   # wine takes 20 s: scripts/test.sh runs these in its Windows step
 def test_wine_rig_fmu_reads_its_resources(tmp_path, wine_runs, extracted):
     """A rig FMU (its GUID in resources/guid.txt, its parameters in resources/start_values.txt), given to
     the DLL as a Windows resource URI (file:///Z:/...): instantiated, and the same run as on Linux."""
