@@ -30,6 +30,7 @@ def test_linearize_and_design_prints_the_papers_poles_and_two_stable_loops():
     assert out.count("stable True") == 2
 
 
+@pytest.mark.slow   # a whole diagnosis (6 s): the quick tier keeps its margin under 2 minutes
 def test_diagnose_your_record_finds_the_planted_delay():
     out = run("diagnose_your_record.py")
     assert "selected ['delay']" in out
