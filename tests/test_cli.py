@@ -71,12 +71,20 @@ def test_implausible_record_is_refused_before_anything_is_written(tmp_path):
     (["step", "--out", "o", "--duration", "-1"], "must be a positive finite number"),
     (["frobnicate"], "invalid choice"),
 ])
-def test_errors_are_one_line(tmp_path, args, words):
-    r = subprocess.run([sys.executable, "-m", "maglev_cosim.cli", *args], capture_output=True, text=True,
-                       cwd=tmp_path, timeout=120)
-    assert r.returncode == 2
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and words in lines[0] and "Traceback" not in r.stderr, r.stderr
+def test_errors_are_one_line(tmp_path, monkeypatch, capsys, args, words):
+    """In-process (one interpreter start per case cost 3 s): main's exit status and stderr; the
+    process-level behaviour (exit status, nothing written) is test_errors_write_nothing's."""
+    from maglev_cosim.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    try:
+        rc = main(list(args))
+    except SystemExit as exc:          # argparse's own errors
+        rc = exc.code
+    assert rc == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0] and "Traceback" not in err, err
 
 
 def test_errors_write_nothing(tmp_path):
