@@ -260,12 +260,9 @@ _SIGNAL_AXIS = {"u": ("controller output u [MU]", 1.0), "x": ("ball position x [
 def _location_plot(corrections, out: Path, plt) -> str:
     """The best generic correction at each location: the spline's curve over its signal, or the
     filter's frequency response; its held-out gain in the title."""
-    from .diagnosis.locate import LOCATIONS
+    from .diagnosis.locate import LOCATIONS, best_per_location
 
-    best = {}
-    for c in corrections:
-        if c.location not in best or c.held_out_gain > best[c.location].held_out_gain:
-            best[c.location] = c
+    best = best_per_location(corrections)
     fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
     for a, loc in zip(ax, LOCATIONS):
         c = best.get(loc)

@@ -12,7 +12,7 @@ effects are (issue 7, item 5):
   model's reading.
 
 Each correction has two forms: a *static nonlinearity*, a smooth cubic spline of the local signal
-(``scipy.interpolate.BSpline``, knots at the signal's quantiles), and a *low-order linear
+(``scipy.interpolate.BSpline``, knots at the signal's quantiles on the fit blocks), and a *low-order linear
 filter*, ``sum_l a_l*(s[k-l] - s[k])`` over a few lags ``l`` of the local signal ``s`` (a lag,
 a delay or a lead all have this form to first order); at the mechanics the filter also has a term
 in the ball's velocity (damping). Each basis signal is injected into the model's closed loop
@@ -190,16 +190,23 @@ def generic_corrections(rec: Record, params: Mapping[str, float], fit_mask: np.n
     return sorted(out, key=lambda c: -c.held_out_gain)
 
 
+def best_per_location(corrections: list[Correction]) -> dict[str, Correction]:
+    """Each location's correction with the largest held-out gain."""
+    best: dict[str, Correction] = {}
+    for c in corrections:
+        if c.location not in best or c.held_out_gain > best[c.location].held_out_gain:
+            best[c.location] = c
+    return best
+
+
 def locate(corrections: list[Correction]) -> tuple[str, dict[str, dict], list[str]]:
     """The location whose best correction removes most of the held-out residual (at least
     :data:`MIN_GAIN`), else ``undetermined``; per location its best correction's figures; and the
     other locations whose best removes at least :data:`RIVAL_SHARE` of that (the record does not
     separate them: a lag of the current, of the force and of the reading are nearly the same
     transfer function from u to y, so filters at all three places often tie)."""
-    best: dict[str, dict] = {}
-    for c in corrections:
-        if c.location not in best or c.held_out_gain > best[c.location]["held_out_gain"]:
-            best[c.location] = {"form": c.form, "signal": c.signal, "held_out_gain": c.held_out_gain}
+    best = {loc: {"form": c.form, "signal": c.signal, "held_out_gain": c.held_out_gain}
+            for loc, c in best_per_location(corrections).items()}
     top = max(best.items(), key=lambda kv: kv[1]["held_out_gain"], default=None)
     if top is None or top[1]["held_out_gain"] < MIN_GAIN:
         return "undetermined", best, []
