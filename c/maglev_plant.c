@@ -13,7 +13,7 @@
 #define STEP_MAX 1e-3
 #define STEP_MIN 1e-6 /* [s] finer RK4 steps buy no accuracy at double precision and cost time */
 #define TIME_EPS 1e-12
-#define T_F_MIN 1e-6 /* [s] shorter force lags would need ever smaller RK4 substeps */
+#define T_F_MIN 1e-6 /* [s] a shorter force lag is no lag at any sample rate the plant serves */
 #define TRANSIENT_EPS 1e-6 /* [A] current transient below which RK4 may take full steps */
 #define FF_CURRENT_EPS 1e-12 /* [A] current transient that no longer moves a force lag's input */
 #define V_COULOMB 1e-4 /* [m/s] smoothing speed of the Coulomb friction: F_c*tanh(v/V_COULOMB) */
@@ -263,6 +263,55 @@ static double delayed_input(const MaglevPlant *m, double t) {
 /* The RK4 state: the current is integrated only with a voltage drive (else it is given). */
 typedef struct { double x, v, F, i; } Mech;
 
+/* phi_0..phi_4 of the exponential integrators at z <= 0: phi_0 = e^z, phi_(k+1) = (phi_k - 1/k!)/z.
+ * Where |z| < 1 that recursion would cancel: phi_4 by its series, then phi_k = z*phi_(k+1) + 1/k!. */
+static void phi_functions(double z, double phi[5]) {
+    phi[0] = exp(z);
+    if (z > -1.0) {
+        double term = 1.0 / 24, sum = 0.0;
+        for (int j = 0; j < 40 && fabs(term) > 1e-19; j++) {
+            sum += term;
+            term *= z / (j + 5);
+        }
+        phi[4] = sum;
+        phi[3] = z * phi[4] + 1.0 / 6;
+        phi[2] = z * phi[3] + 0.5;
+        phi[1] = z * phi[2] + 1.0;
+    } else {
+        double fact = 1.0;
+        for (int k = 0; k < 4; k++) {
+            if (k > 0) fact *= k;
+            phi[k + 1] = (phi[k] - 1.0 / fact) / z;
+        }
+    }
+}
+
+/* The force lag F' = (F_s - F)/T_F is stiff when T_F is short: plain RK4 needs substeps below
+ * 2.8*T_F to stay stable, and below T_F/2 to be accurate (a lag of 50 us cost 6 lag-free replays). Cox and Matthews' ETDRK4 takes
+ * its linear part -F/T_F exactly and reduces to the classic RK4 of x and v, whose stages it
+ * shares; these are its weights for a substep h (z = -h/T_F): the stages' e^(z/2) and
+ * (h/2)*phi_1(z/2), the step's e^z and h*(phi_1 - 3phi_2 + 4phi_3), 2h*(phi_2 - 2phi_3),
+ * h*(4phi_3 - phi_2), which tend to RK4's h/6, h/3, h/6 as T_F grows. */
+static const MaglevEtd *etd_weights(MaglevPlant *m, double h) {
+    const double T = P(m, T_F);
+    for (int k = 0; k < 2; k++)
+        if (m->etd[k].h == h && m->etd[k].T == T) return &m->etd[k];
+    MaglevEtd *c = &m->etd[m->etd_next];
+    m->etd_next ^= 1;
+    double p[5], q[5];
+    phi_functions(-h / T, p);
+    phi_functions(-h / (2 * T), q);
+    c->h = h;
+    c->T = T;
+    c->e = p[0];
+    c->e2 = q[0];
+    c->a2 = h / 2 * q[1];
+    c->f1 = h * (p[1] - 3 * p[2] + 4 * p[3]);
+    c->f2 = 2 * h * (p[2] - 2 * p[3]);
+    c->f3 = h * (4 * p[3] - p[2]);
+    return c;
+}
+
 typedef struct {
     const MaglevPlant *m;
     double i0, ic;          /* current at the piece's start and its command */
@@ -273,11 +322,12 @@ typedef struct {
     int voltage;            /* a voltage drive: the current is a state */
     double volts;           /* its coil voltage in this piece */
     long *work;             /* RK4 evaluations spent in this maglev_step, against the budget */
+    MaglevPlant *cache;     /* the same plant: its cache of the force lag's ETDRK4 weights */
 } Piece;
 
-static Piece make_piece(const MaglevPlant *m, double i0, double ic, double volts, long *work) {
+static Piece make_piece(MaglevPlant *m, double i0, double ic, double volts, long *work) {
     Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), P(m, F_c) / P(m, m_k),
-                P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work};
+                P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work, m};
     return pc;
 }
 
@@ -289,9 +339,8 @@ HOT Mech deriv(const Piece *pc, double i, Mech s, int contact) {
         d.i = coil_rate(m, pc->volts, s.i, s.x, contact ? 0.0 : s.v);
         i = s.i;
     }
-    if (P(m, T_F) > 0) {
-        double Fs = static_force(m, i, s.x);
-        d.F = (Fs - s.F) / P(m, T_F);
+    if (P(m, T_F) > 0) { /* d.F: the lag's input F_s/T_F (its linear part -F/T_F is the ETD's) */
+        d.F = static_force(m, i, s.x) / P(m, T_F);
         d.x = contact ? 0.0 : s.v;
         d.v = contact ? 0.0 : s.F / P(m, m_k) - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
         if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
@@ -317,8 +366,7 @@ HOT Mech axpy(Mech s, double a, Mech d) {
 }
 
 /* One RK4 step with the currents at its start, middle and end given. */
-HOT Mech rk4_i(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
-    ++*pc->work;
+HOT Mech rk4_plain(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
     Mech k1 = deriv(pc, ia, s, contact);
     Mech k2 = deriv(pc, im, axpy(s, h / 2, k1), contact);
     Mech k3 = deriv(pc, im, axpy(s, h / 2, k2), contact);
@@ -326,10 +374,37 @@ HOT Mech rk4_i(const Piece *pc, Mech s, double h, int contact, double ia, double
     Mech r;
     r.x = s.x + h / 6 * (k1.x + 2 * k2.x + 2 * k3.x + k4.x);
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
-    r.F = s.F + h / 6 * (k1.F + 2 * k2.F + 2 * k3.F + k4.F);
+    r.F = s.F;
     r.i = s.i;
     if (pc->voltage) r.i = clip(s.i + h / 6 * (k1.i + 2 * k2.i + 2 * k3.i + k4.i), 0.0, P(pc->m, i_max));
     return r;
+}
+
+/* The same step with a force lag: ETDRK4 for F, the classic RK4 for the rest. */
+static Mech rk4_etd(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
+    const MaglevEtd *c = etd_weights(pc->cache, h);
+    Mech k1 = deriv(pc, ia, s, contact);
+    Mech sa = axpy(s, h / 2, k1);
+    sa.F = c->e2 * s.F + c->a2 * k1.F;
+    Mech k2 = deriv(pc, im, sa, contact);
+    Mech sb = axpy(s, h / 2, k2);
+    sb.F = c->e2 * s.F + c->a2 * k2.F;
+    Mech k3 = deriv(pc, im, sb, contact);
+    Mech sc = axpy(s, h, k3);
+    sc.F = c->e2 * sa.F + c->a2 * (2 * k3.F - k1.F);
+    Mech k4 = deriv(pc, ib, sc, contact);
+    Mech r;
+    r.x = s.x + h / 6 * (k1.x + 2 * k2.x + 2 * k3.x + k4.x);
+    r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
+    r.F = c->e * s.F + c->f1 * k1.F + c->f2 * (k2.F + k3.F) + c->f3 * k4.F;
+    r.i = s.i;
+    if (pc->voltage) r.i = clip(s.i + h / 6 * (k1.i + 2 * k2.i + 2 * k3.i + k4.i), 0.0, P(pc->m, i_max));
+    return r;
+}
+
+HOT Mech rk4_i(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
+    ++*pc->work;
+    return P(pc->m, T_F) > 0 ? rk4_etd(pc, s, h, contact, ia, im, ib) : rk4_plain(pc, s, h, contact, ia, im, ib);
 }
 
 static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
@@ -443,26 +518,8 @@ static int stays_on_stop(const Piece *pc, Mech s, int contact, double i_now) {
  * w[k+1] = r*k!*phi_{k+1}(-r), the exponential integrators' phi functions (series for small r, where
  * their recursion would cancel). */
 static void lag_weights(double r, double w[5]) {
-    double z = -r, phi[5];
-    phi[0] = exp(z);
-    if (r < 1.0) {
-        double fact = 1.0; /* k! */
-        for (int k = 1; k <= 4; k++) {
-            fact *= k;
-            double term = 1.0 / fact, sum = 0.0;
-            for (int j = 0; j < 30 && term != 0.0; j++) {
-                sum += term;
-                term *= z / (j + k + 1);
-            }
-            phi[k] = sum;
-        }
-    } else {
-        double fact = 1.0;
-        for (int k = 0; k < 4; k++) {
-            if (k > 0) fact *= k;
-            phi[k + 1] = (phi[k] - 1.0 / fact) / z;
-        }
-    }
+    double phi[5];
+    phi_functions(-r, phi);
     w[0] = phi[0];
     w[1] = r * phi[1];
     w[2] = r * phi[2];
@@ -470,33 +527,43 @@ static void lag_weights(double r, double w[5]) {
     w[4] = 6 * r * phi[4];
 }
 
-/* Integrates [t0, t0 + len) with a constant delayed input. RK4 sees the current's exponential
- * transient as a fast forcing term: while it exceeds 1 uA the substeps are T_a/8 at most (the
- * 1 kHz closed loop then agrees with the solve_ivp reference to 1e-8 MU); afterwards they grow
- * to solver_step. Returns -1 when the work budget runs out. */
+/* Integrates [t0, t0 + len) with a constant delayed input, in parts of equal substeps (at most
+ * solver_step). Returns -1 when the work budget runs out. */
 static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work) {
+    enum { MAX_PARTS = 12 };
     Piece pc = make_piece(m, m->i, current_command(m, u_eff), coil_volts(m, u_eff), work);
     Mech s = {m->x, m->v, m->F, m->i};
     double hmax = P(m, solver_step);
-    if (P(m, T_F) > 0 && P(m, T_F) / 2 < hmax) hmax = P(m, T_F) / 2;
+    /* ETDRK4 is stable at any T_F, but where T_F << h its force stages trail the static force by
+     * about h/2 (3e-4 MU at T_F = 1 us, h = 0.25 ms); h <= 2*T_F keeps that below 1e-5 MU */
+    if (P(m, T_F) > 0 && 2 * P(m, T_F) < hmax) hmax = 2 * P(m, T_F);
     /* the smoothed friction's slope F_c/(m_k*v_c) is a fast rate near v = 0: keep RK4's h*rate <= 0.1 */
     if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c) < hmax) hmax = 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c);
-    double hfine = hmax, t_fine = 0.0, di = fabs(pc.i0 - pc.ic);
+    double bounds[MAX_PARTS], hs[MAX_PARTS], tau = 0.0, di = fabs(pc.i0 - pc.ic);
+    int nparts = 0;
     if (pc.voltage) { /* RK4 on the coil equation: keep h below a fifth of its smallest time constant */
         double tau_e = (P(m, L_0) - P(m, L_i) * PI / 2) / P(m, R_c);
         if (tau_e / 5 < hmax) hmax = tau_e / 5;
-        hfine = hmax;
     } else if (P(m, T_a) > 0 && di > TRANSIENT_EPS) {
-        if (P(m, T_a) / 8 < hfine) hfine = P(m, T_a) / 8;
-        t_fine = P(m, T_a) * log(di / TRANSIENT_EPS);
-        if (t_fine > len) t_fine = len;
+        /* RK4 sees the current's transient d*e^(-t/T_a) as a fast forcing term, with an error per
+         * substep of about its size times (h/T_a)^4: the substeps start at T_a/8 (the 1 kHz closed
+         * loop then agrees with the solve_ivp reference to 1e-8 MU) and double each time it has
+         * shrunk 16-fold, until it is below 1 uA or they reach solver_step */
+        double T = P(m, T_a), t_fine = fmin(T * log(di / TRANSIENT_EPS), len), h = T / 8, t = 0.0;
+        while (h < hmax && t < t_fine && nparts < MAX_PARTS - 1) {
+            t = fmin(t + 4 * 0.69314718055994531 * T, t_fine);
+            bounds[nparts] = t;
+            hs[nparts++] = h;
+            h *= 2;
+        }
     }
-    double bounds[2] = {t_fine, len}, hs[2] = {hfine, hmax}, tau = 0.0;
+    bounds[nparts] = len;
+    hs[nparts++] = hmax;
     double d = pc.i0 - pc.ic;
     int resting = 0;
     const double Ty = P(m, T_y);
     double xs = m->xs;
-    for (int part = 0; part < 2 && !resting; part++) {
+    for (int part = 0; part < nparts && !resting; part++) {
         double span = bounds[part] - tau;
         if (span <= 0) continue;
         /* A span beyond the budget is integrated at the nominal substep while the budget lasts:

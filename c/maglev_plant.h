@@ -97,6 +97,10 @@ typedef struct {
  * more is refused with the plant unchanged, so no call can hang its caller. */
 #define MAGLEV_STEP_BUDGET 500000L
 
+/* The force lag's ETDRK4 weights for one substep h at one T_F (maglev_plant.c): derived data,
+ * cached for the two substep lengths used last (a delay splits each step into two pieces). */
+typedef struct { double h, T, e, e2, a2, f1, f2, f3; } MaglevEtd;
+
 typedef struct {
     double p[MAGLEV_NPARAMS];   /* indexed by VR - MAGLEV_FIRST_PARAM */
     int initialized;            /* set by maglev_initialize; parameters are fixed from then on */
@@ -106,6 +110,8 @@ typedef struct {
     double xs;                  /* [m] the position the sensor sees (x itself unless T_y > 0) */
     int contact;                /* MaglevContact */
     MaglevHistory hist;
+    MaglevEtd etd[2];           /* a cache, not state: rebuilt from h and T_F when they differ */
+    int etd_next;               /* the slot the next new weights replace */
 } MaglevPlant;
 
 /* Allocation hooks, so the FMU can use the importer's allocator. */

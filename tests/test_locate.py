@@ -58,3 +58,25 @@ def test_injection_enters_where_it_says(tmp_path):
     assert np.mean(amp["u"][-500:] - base["u"][-500:]) == pytest.approx(-0.01, rel=0.05)   # the PID takes it back
     with pytest.raises(ValueError, match="samples"):
         replay_injected(rec, p, du=np.zeros(n - 1))
+
+
+@pytest.mark.parametrize("extra", [{}, {"T_a": 2e-3, "T_d": 1.5e-3}, {"i_max": 0.8, "k_x2": 300.0}])
+def test_a_replay_is_the_loop_simulate_runs_settled_at_the_first_reading(tmp_path, extra):
+    """The replays of the fits work on parameter vectors, past the parameter objects: the same loop
+    as :func:`maglev_cosim.loop.simulate` from the same settled start, to the last bit."""
+    from maglev_cosim import fast, formulas
+    from maglev_cosim.loop import simulate
+    from maglev_cosim.params import as_params
+    from maglev_cosim.replay import record_controller
+
+    rec = read_record(synth_record(tmp_path / "r.csv", effects={"delay": {"T_d": 2e-3}}, seed=4, duration=2.0))
+    values = {**baseline_params(), **extra}
+    p = as_params(values)
+    ref = simulate(p, rec.w, controller=record_controller(rec), x_op=formulas.position(p, float(rec.y[0]))).signals()
+    for given in (values, fast.param_vector(values)):
+        got = replay(rec, given)
+        assert set(got) == set(ref)
+        for k in ref:
+            np.testing.assert_array_equal(got[k], ref[k], err_msg=k)
+    with pytest.raises(ValueError, match="x_0"):
+        replay(rec, {**values, "x_0": values["x_max"] * 0.5})

@@ -78,15 +78,40 @@ def _defaults() -> dict[str, float]:
     return _default_cache
 
 
-def _param_vector(params: Mapping[str, float] | None) -> np.ndarray:
+_index_cache: dict[str, int] | None = None
+
+
+def param_index() -> dict[str, int]:
+    """Each FMU parameter's index in a parameter vector (:func:`param_vector`)."""
+    global _index_cache
+    if _index_cache is None:
+        _index_cache = {n: k for k, n in enumerate(_defaults())}
+    return _index_cache
+
+
+def param_vector(params: PlantParams | Mapping[str, float] | np.ndarray | None) -> np.ndarray:
+    """All FMU parameter values in the C order, ``params`` over the C defaults, checked by the C
+    rules (``ValueError`` naming the variable otherwise). A vector (from this function) passes as
+    it is, checked again: the replays of a fit build it once and hand it down."""
+    return _param_vector(_as_mapping(params))
+
+
+def _param_vector(params: Mapping[str, float] | np.ndarray | None) -> np.ndarray:
     """The values in C order (over the defaults), checked by the C rules."""
     defaults = _defaults()
+    if isinstance(params, np.ndarray):
+        if params.shape != (len(defaults),):
+            raise ValueError(f"a parameter vector holds {len(defaults)} values, not {params.shape}")
+        return _checked(np.array(params, dtype=float))
     if params:
         unknown = sorted(set(params) - set(defaults))
         if unknown:
             raise ValueError(f"unknown parameter(s): {', '.join(unknown)}")
         defaults = {**defaults, **{k: float(v) for k, v in params.items()}}
-    vec = np.fromiter(defaults.values(), dtype=float, count=len(defaults))
+    return _checked(np.fromiter(defaults.values(), dtype=float, count=len(defaults)))
+
+
+def _checked(vec: np.ndarray) -> np.ndarray:
     m = _lib()
     msg = m.ffi.new("char[256]")
     if m.lib.maglev_replay_check_params(m.ffi.cast("double *", m.ffi.from_buffer(vec)), msg, 256) != 0:

@@ -38,31 +38,26 @@ class Point:
     dy_dx: float
 
 
-def _values(params: PlantParams | Mapping[str, float] | None) -> dict[str, float] | None:
-    if params is None or isinstance(params, Mapping):
-        return None if params is None else dict(params)
-    return params.to_start_values()
-
-
 def _call(fn_name: str, params, *args):
     m = fast._lib()
-    pv = fast._param_vector(_values(params))
+    pv = fast.param_vector(params)
     msg = m.ffi.new("char[256]")
     rc = getattr(m.lib, fn_name)(m.ffi.cast("double *", m.ffi.from_buffer(pv)), *args, msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
 
 
-def point(params: PlantParams | Mapping[str, float] | None, x: float, i: float | None = None) -> Point:
+def point(params: PlantParams | Mapping[str, float] | np.ndarray | None, x: float, i: float | None = None) -> Point:
     """The plant's formulas at ``x`` [m] and current ``i`` [A] (default: the equilibrium current,
-    Eq. 8 at rest). ``params``: a :class:`PlantParams` or FMU parameter values over the C defaults."""
+    Eq. 8 at rest). ``params``: a :class:`PlantParams`, FMU parameter values over the C defaults,
+    or a parameter vector (:func:`maglev_cosim.fast.param_vector`)."""
     m = fast._lib()
     out = m.ffi.new("MaglevPoint *")
     _call("maglev_replay_point", params, float(x), math.nan if i is None else float(i), out)
     return Point(*(float(getattr(out, f)) for f in Point.__dataclass_fields__))
 
 
-def positions(params: PlantParams | Mapping[str, float] | None, y, t: float = 0.0) -> np.ndarray:
+def positions(params: PlantParams | Mapping[str, float] | np.ndarray | None, y, t: float = 0.0) -> np.ndarray:
     """Positions [m] between the stops where the model reads ``y`` [MU] at time ``t`` [s] (Eq. 12,
     13 inverted, ``k_x2`` and the pickup included); readings beyond the travel give the nearest stop."""
     m = fast._lib()
@@ -73,7 +68,7 @@ def positions(params: PlantParams | Mapping[str, float] | None, y, t: float = 0.
     return x
 
 
-def position(params: PlantParams | Mapping[str, float] | None, y: float, t: float = 0.0) -> float:
+def position(params: PlantParams | Mapping[str, float] | np.ndarray | None, y: float, t: float = 0.0) -> float:
     """:func:`positions` for one reading."""
     return float(positions(params, [y], t)[0])
 

@@ -123,8 +123,22 @@ def reference_signal(kind: str, duration: float, ts: float = 1e-3, *, base: floa
 def settled_start(p: PlantParams, x_op: float) -> tuple[PlantParams, float]:
     """The plant at rest at ``x_op`` [m] with the equilibrium current (limited to ``i_max``), and
     the D/A input [MU] that holds it there."""
-    i = min(formulas.point(p, x_op).i, p.i_max)
-    return p.replace(x_start=x_op, v_start=0.0, i_start=i), formulas.point(p, x_op, i).u
+    from .fast import param_index
+
+    start, u_hold = settled_start_vector(p, x_op)
+    return p.replace(x_start=x_op, v_start=0.0, i_start=start[param_index()["i_start"]]), u_hold
+
+
+def settled_start_vector(params: PlantParams | Mapping[str, float] | np.ndarray, x_op: float) -> tuple[np.ndarray, float]:
+    """:func:`settled_start` on a parameter vector (:func:`maglev_cosim.fast.param_vector`), for
+    the replays of a fit: the start state set in a copy of the vector, and the hold input [MU]."""
+    from .fast import param_index, param_vector
+
+    pv, k = param_vector(params), param_index()
+    i = min(formulas.point(pv, x_op).i, pv[k["i_max"]])
+    u_hold = formulas.point(pv, x_op, i).u
+    pv[k["x_start"]], pv[k["v_start"]], pv[k["i_start"]] = x_op, 0.0, i
+    return pv, u_hold
 
 
 def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarray, *,

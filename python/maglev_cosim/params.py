@@ -72,7 +72,7 @@ class PlantParams:
 
     def to_start_values(self) -> dict[str, float]:
         """FMU start values by variable name (for ``simulate_fmu(start_values=...)`` or ``setReal``)."""
-        return {k: float(v) for k, v in asdict(self).items()}
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)}
 
     def validate(self) -> None:
         """Raises ``ValueError`` (one line naming the variable) unless the FMU would accept these

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import fast, formulas
-from .loop import settled_start, simulate
-from .params import PlantParams, as_params, get_params
+from .loop import settled_start_vector
+from .params import as_params, get_params
 from .controllers import Controller
 from .pid import PID
 from .record import Record
@@ -33,35 +33,35 @@ def record_controller(rec: Record) -> Controller:
     return rec.controller if rec.controller is not None else PID(**rec.pid_kwargs())
 
 
-def _settled_at_first_reading(rec: Record, params: Mapping[str, float]) -> tuple[PlantParams, float]:
-    """``params`` checked as the FMU would, and the position [m] where the model reads ``y[0]``:
-    every replay of a record starts settled there."""
-    fast.check_params(params)
-    p = as_params(params)
-    return p, formulas.position(p, float(rec.y[0]))
+def _settled_at_first_reading(rec: Record, params: Mapping[str, float] | np.ndarray) -> tuple[np.ndarray, float]:
+    """``params`` checked as the FMU would, as a parameter vector with the start state where every
+    replay of a record starts: at rest where the model reads ``y[0]``, the current at equilibrium
+    there (:func:`~maglev_cosim.loop.settled_start`); and the hold input [MU]. It works on the
+    vector: a fit replays thousands of times, and building parameter objects cost a third of each."""
+    pv = fast.param_vector(params)
+    return settled_start_vector(pv, formulas.position(pv, float(rec.y[0])))
 
 
-def replay(rec: Record, params: Mapping[str, float], *, w: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """The record's closed loop simulated with ``params`` (FMU parameter values), settled at the
-    position where the model reads ``y[0]``, on the fast backend.
+def replay(rec: Record, params: Mapping[str, float] | np.ndarray, *, w: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The record's closed loop simulated with ``params`` (FMU parameter values, or a vector of
+    them), settled at the position where the model reads ``y[0]``: the loop of
+    :func:`maglev_cosim.loop.simulate` (``backend="fast"``, ``x_op`` there), in one C call.
 
     Returns arrays t [s], w, u, y [MU], x [m], v [m/s], i [A]. Raises ``ValueError`` (one line
     naming the variable) for a parameter set the FMU would refuse."""
-    p, x_op = _settled_at_first_reading(rec, params)
-    r = simulate(p, rec.w if w is None else w, controller=record_controller(rec), backend="fast", x_op=x_op)
-    return r.signals()
+    return replay_injected(rec, params, w=w)
 
 
-
-def replay_injected(rec: Record, params: Mapping[str, float], *, du: np.ndarray | None = None,
-                    dF: np.ndarray | None = None, dy: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def replay_injected(rec: Record, params: Mapping[str, float] | np.ndarray, *, du: np.ndarray | None = None,
+                    dF: np.ndarray | None = None, dy: np.ndarray | None = None,
+                    w: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """:func:`replay` with signals injected where a model error can enter the loop: ``du`` [MU]
     added to the controller's output on its way to the plant (actuator), ``dF`` [N] a force on the
     ball held over each sample (mechanics), ``dy`` [MU] added to the reading (sensor); each one
     value per sample, or None. Same start as :func:`replay`; with no injection the same result."""
-    p, x_op = _settled_at_first_reading(rec, params)
-    start, u_hold = settled_start(p, x_op)
-    return fast.closed_loop(start, rec.w, pid=record_controller(rec), u_hold=u_hold, du=du, dF=dF, dy=dy)
+    start, u_hold = _settled_at_first_reading(rec, params)
+    return fast.closed_loop(start, rec.w if w is None else w, pid=record_controller(rec), u_hold=u_hold,
+                            du=du, dF=dF, dy=dy)
 
 # ----------------------------------------------------------------------------- prediction-error replay
 
@@ -123,9 +123,9 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
         ``y_pred``, ``u_pred`` [MU]: the predictions of y[k], u[k] made ``horizon`` samples
         earlier (NaN where none ends); ``innov`` [MU], ``innov_var`` [MU²]: one-step innovations.
     """
-    start, u_hold = settled_start(*_settled_at_first_reading(rec, params))
+    start, u_hold = _settled_at_first_reading(rec, params)
     horizon = horizon_samples(horizon_s, rec.ts)
-    return fast.predict(start.to_start_values(), record_controller(rec), rec.w, rec.y, rec.u, u_hold,
+    return fast.predict(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold,
                         q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizon=horizon,
                         stride=stride)
 

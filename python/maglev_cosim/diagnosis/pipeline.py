@@ -185,6 +185,7 @@ def _weighted(prob: Problem, values: Mapping[str, float]) -> Problem:
 def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) -> dict:
     """Fits one effect together with the recalibrated baseline on the fit blocks; effects
     selected in earlier rounds stay in the model (in ``current``) while this one is fitted."""
+    t0 = time.process_time()
     eff = CATALOGUE[effect_name]
     prob = prob.with_base(current)
     # choose the best start with the baseline held, then fit everything from it
@@ -198,7 +199,7 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) ->
     # the start's values besides the fitted coordinates (say the force exponent's pivot) stay
     f = fit(prob.with_base(best_vals), [BASELINE, eff], [BASELINE.to_coords(best_vals), best])
     return {"effect": effect_name, "values": {**current, **best_vals, **f.values}, "fit_cost": f.cost,
-            "nfev": f.nfev}
+            "nfev": f.nfev, "cpu_s": time.process_time() - t0}
 
 
 def _worker(args: tuple[Problem, dict[str, float], str]) -> dict:
@@ -238,6 +239,7 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
     selected: list[str] = []
     candidates: list[dict] = []
     rounds: list[dict] = []
+    cpu: dict[str, float] = {}       # each candidate's CPU time in the last round
     ctx = get_context("fork") if sys.platform.startswith("linux") else get_context()
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx) if workers > 1 else None
     try:
@@ -247,13 +249,16 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                 break
             hold_before = cost_on(prob, current, hold_mask)
             say(f"round {rnd}: fitting {len(remaining)} candidate effect(s) on the fit blocks")
-            # the costliest fits first, so that no core idles at the end of the round
-            work = {e: len(CATALOGUE[e].starts(prob, current)) * len(CATALOGUE[e].params) for e in remaining}
+            # the costliest fits first, so that no core idles at the end of the round: as the last
+            # round measured them, or in the first as many starts and parameters they have
+            work = {e: cpu.get(e, len(CATALOGUE[e].starts(prob, current)) * len(CATALOGUE[e].params))
+                    for e in remaining}
             jobs = [(prob, current, e) for e in sorted(remaining, key=lambda e: -work[e])]
             results = []
             for k, res in enumerate(pool.map(_worker, jobs) if pool else map(_worker, jobs), 1):
                 entry, vals = judge(prob, hold_mask, hold_before, res, rnd)
                 results.append((entry, vals))
+                cpu[res["effect"]] = res["cpu_s"]
                 say(f"  [{k}/{len(jobs)}] {entry['effect']}: "
                     + ", ".join(f"{p} = {v:.4g}" for p, v in entry["parameters"].items())
                     + f"; held-out cost change {-100 * entry['held_out_gain']:+.1f} % "

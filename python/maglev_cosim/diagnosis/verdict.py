@@ -30,6 +30,7 @@ The verdict (``diagnosis.json``'s ``verdict``):
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -151,8 +152,9 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     verdict names the location they find."""
     say("estimating the record's disturbances (random force on the ball, sensor noise) from the filter's "
         "innovations, for the calibrated baseline and the final model")
-    noise_before = estimate_noise(rec, baseline)
-    noise = estimate_noise(rec, final)
+    # two threads: the filter runs in C, which cffi calls with the GIL released
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        noise_before, noise = pool.map(lambda v: estimate_noise(rec, v), (baseline, final))
     say(f"  final model: random force {noise.q_force * 1e3:.3g} mN RMS (corner {noise.f_force:.3g} Hz), "
         f"sensor noise {noise.r_sensor:.3g} MU RMS; k-step prediction over {HORIZON_S * 1e3:.0f} ms")
     before = figures(rec, baseline, sims["before"], noise_before)
