@@ -431,9 +431,11 @@ def cmd_synth(a: argparse.Namespace) -> dict:
             raise CliError(f"--param {spec!r}: expected NAME=VALUE")
         k, v = spec.split("=", 1)
         params[k.strip()] = _finite(v)
+    if a.period is not None and a.reference not in ("square", "sine"):
+        raise CliError(f"--period applies to a square or sine reference, not {a.reference}")
     _progress(f"synthesising {a.duration} s ({a.reference}) with effects {effects or 'none'}")
     path = synth_record(Path(a.out), effects=effects, reference=a.reference, duration=a.duration, seed=a.seed,
-                        noise=not a.no_noise, params=params or None)
+                        noise=not a.no_noise, params=params or None, period=a.period)
     print(f"wrote {path}")
     return {"record": str(path)}
 
@@ -641,6 +643,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "(repeatable)")
     s.add_argument("--reference", choices=["square", "sine", "steps", "chirp"], default="steps",
                    help="reference: random staircase (default, most informative), square, sine or chirp")
+    s.add_argument("--period", type=_positive, metavar="S", help="[s] period of a square or sine reference "
+                   "(default 3 and 4)")
     s.add_argument("--duration", type=_positive, default=12.0, metavar="S", help="[s] (default 12)")
     s.add_argument("--seed", type=int, default=0, help="random seed of the noise and the staircase (default 0)")
     s.add_argument("--no-noise", action="store_true", help="no sensor noise, random force or quantisation")

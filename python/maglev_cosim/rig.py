@@ -108,18 +108,21 @@ def _position_for(cfg: RigConfig, y: float) -> float:
     return 0.5 * (lo + hi)
 
 
-def reference(kind: str, duration: float, ts: float = 1e-3, seed: int = 0, cfg: RigConfig | None = None) -> np.ndarray:
-    """A position reference [MU]: ``square`` (3.0 ↔ 3.5 mm, period 3 s as Sec. 5), ``sine`` (3.2 mm
-    ± 0.6 mm at 0.25 Hz), ``steps`` (random staircase across 2.0–4.5 mm, steps of 0.15–0.5 mm every
+def reference(kind: str, duration: float, ts: float = 1e-3, seed: int = 0, cfg: RigConfig | None = None,
+              period: float | None = None) -> np.ndarray:
+    """A position reference [MU]: ``square`` (3.0 ↔ 3.5 mm, period 3 s as Sec. 5, or ``period``
+    [s]), ``sine`` (3.2 mm ± 0.6 mm at 0.25 Hz, or one cycle per ``period``), ``steps`` (random staircase across 2.0–4.5 mm, steps of 0.15–0.5 mm every
     0.6–1.4 s: the most informative), ``chirp`` (3.2 mm ± 0.25 mm, 0.1 → 5 Hz)."""
     cfg = cfg or RigConfig()
     n = int(round(duration / ts))
     t = np.arange(n) * ts
     rng = np.random.default_rng(seed)
+    if period is not None and not (period > 0 and kind in ("square", "sine")):
+        raise ValueError(f"a period (here {period!r}) is given to a square or a sine reference, and it is > 0 s")
     if kind == "square":
-        x = np.where(np.floor(t / 1.5).astype(int) % 2 == 0, 3.0e-3, 3.5e-3)
+        x = np.where(np.floor(t / ((period or 3.0) / 2)).astype(int) % 2 == 0, 3.0e-3, 3.5e-3)
     elif kind == "sine":
-        x = 3.2e-3 + 0.6e-3 * np.sin(2 * np.pi * 0.25 * t)
+        x = 3.2e-3 + 0.6e-3 * np.sin(2 * np.pi * t / (period or 4.0))
     elif kind == "steps":
         x = np.empty(n)
         level, k = 3.2e-3, 0

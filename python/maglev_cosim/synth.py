@@ -115,8 +115,10 @@ def draw_disturbance(seed: int, *, gains: bool = True) -> dict[str, float]:
 def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = None, reference: str = "steps", duration: float = 12.0, seed: int = 0, noise: bool = True,
                  params: dict[str, float] | None = None, ts: float = 1e-3, kp: float = 2.0, ki: float = 2.97,
                  kd: float = 0.01, u_min: float = 0.0, u_max: float = 1.0,
-                 disturbance: dict[str, float] | None = None) -> Path:
+                 disturbance: dict[str, float] | None = None, period: float | None = None) -> Path:
     """Simulates the rig and writes a record at ``out`` (and ``out.truth.json``).
+
+    ``period`` [s]: of a ``square`` or ``sine`` reference (default 3 s and 4 s, :func:`rig.reference`).
 
     ``disturbance``: rig noise settings (:data:`DISTURBANCE_KEYS`, e.g. from
     :func:`draw_disturbance`) over the emulator's defaults; PID gains in it override ``kp``, ``ki``, ``kd``."""
@@ -143,12 +145,14 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     cfg = RigConfig().with_values(**{**(params or {}), **values, **dist}, seed=seed)
     if not noise:
         cfg = cfg.with_values(sigma_y=0.0, sigma_F_rel=0.0)
-    w = _rig.reference(kind, duration, ts, seed)
+    w = _rig.reference(kind, duration, ts, seed, period=period)
     sim = simulate_rig(w, cfg, ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max, noise=noise)
     out = Path(out)
     write_record(out, sim["t"], sim["w"], sim["u"], sim["y"], ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max,
-                 meta={"reference": kind, "seed": str(seed), "source": "maglev-cosim synth (rig emulator)"})
+                 meta={"reference": kind, **({"period": str(period)} if period else {}), "seed": str(seed),
+                       "source": "maglev-cosim synth (rig emulator)"})
     truth = {"effects": effects, "params": params or {}, "noise": noise, "seed": seed, "reference": kind,
+             **({"period_s": period} if period else {}),
              "duration": duration, "pid": {"kp": kp, "ki": ki, "kd": kd},
              "disturbance": {k: getattr(cfg, k) for k in DISTURBANCE_KEYS}}
     Path(str(out) + ".truth.json").write_text(json.dumps(truth, indent=2))

@@ -81,6 +81,7 @@ class ModelFigures:
     prediction: dict[str, float]           # horizon_s, fit % of y and u
     predictable_share: float               # of the one-step innovations
     sims: dict[str, np.ndarray] = field(default_factory=dict)
+    prediction_rms: dict[str, float] = field(default_factory=dict)   # RMS k-step error of y and u [MU]
 
     def to_json(self) -> dict:
         return {"free_run": self.free_run, "prediction": self.prediction}
@@ -96,7 +97,9 @@ def figures(rec: Record, values: Mapping[str, float], sim: Mapping[str, np.ndarr
         prediction={"horizon_s": horizon_s, "y": nrmse_fit(rec.y[ok], pr["y_pred"][ok]),
                     "u": nrmse_fit(rec.u[ok], pr["u_pred"][ok])},
         predictable_share=predictable_share(pr["innov"], rec.u),
-        sims={"y_pred": pr["y_pred"], "u_pred": pr["u_pred"], "innov": pr["innov"]})
+        sims={"y_pred": pr["y_pred"], "u_pred": pr["u_pred"], "innov": pr["innov"]},
+        prediction_rms={k: float(np.sqrt(np.mean((meas[ok] - pr[f"{k}_pred"][ok]) ** 2)))
+                        for k, meas in (("y", rec.y), ("u", rec.u))})
 
 
 #: Bounds that are physical limits, not limits of the search: a calibration that ends there has
