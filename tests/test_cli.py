@@ -60,6 +60,8 @@ def test_implausible_record_is_refused_before_anything_is_written(tmp_path):
 
 @pytest.mark.parametrize("args, words", [
     (["synth", "--out", "x.csv", "--effect", "warp:k=1"], "unknown effect 'warp'"),
+    (["synth", "--out", "x.csv", "--reference", "steps", "--period", "0.6"], "--period applies to a square or sine"),
+    (["synth", "--out", "x.csv", "--reference", "square", "--period", "-1"], "--period"),
     (["step", "--out", "o", "--fmu", "/no/such.fmu"], "FMU not found"),
     (["step", "--out", "o", "--params", "nosuchset"], "invalid choice: 'nosuchset'"),
     (["step", "--out", "o", "--amplitude", "5"], "outside the readings of the travel [0.0025, 0.774] MU"),

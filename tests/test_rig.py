@@ -79,3 +79,15 @@ def test_effect_specs():
         parse_effect_spec("delay:T_a=1")
     with pytest.raises(ValueError, match="not a number"):
         parse_effect_spec("delay:T_d=abc")
+
+
+def test_square_and_sine_references_take_a_period():
+    w = reference("square", 1.2, 1e-3, period=0.6)
+    steps = np.flatnonzero(np.diff(w)) + 1
+    assert list(steps) == [300, 600, 900]
+    assert np.array_equal(reference("square", 6.0, 1e-3), reference("square", 6.0, 1e-3, period=3.0))
+    s = reference("sine", 2.0, 1e-3, period=1.0)
+    assert abs(s[250] - s[750]) > 0.01 and s[0] == pytest.approx(s[1000])
+    for kind, period in (("steps", 0.6), ("square", 0.0), ("sine", -1.0)):
+        with pytest.raises(ValueError, match="period"):
+            reference(kind, 1.0, 1e-3, period=period)
