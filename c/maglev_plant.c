@@ -15,6 +15,7 @@
 #define TIME_EPS 1e-12
 #define T_F_MIN 1e-6 /* [s] a shorter force lag is no lag at any sample rate the plant serves */
 #define TRANSIENT_EPS 1e-6 /* [A] current transient below which RK4 may take full steps */
+#define IMPULSE_RATIO 64.0 /* a current transient with T_a <= substep/64 enters as an impulse */
 #define FF_CURRENT_EPS 1e-12 /* [A] current transient that no longer moves a force lag's input */
 #define V_COULOMB 1e-4 /* [m/s] smoothing speed of the Coulomb friction: F_c*tanh(v/V_COULOMB) */
 
@@ -256,8 +257,10 @@ static double delayed_input(const MaglevPlant *m, double t) {
  * as calls (about twice the cost per step); forced inline, the output is bit-identical. */
 #if defined(__GNUC__)
 #define HOT static inline __attribute__((always_inline))
+#define COLD static __attribute__((noinline, cold))
 #else
 #define HOT static inline
+#define COLD static
 #endif
 
 /* The RK4 state: the current is integrated only with a voltage drive (else it is given). */
@@ -322,25 +325,29 @@ typedef struct {
     int voltage;            /* a voltage drive: the current is a state */
     double volts;           /* its coil voltage in this piece */
     long *work;             /* RK4 evaluations spent in this maglev_step, against the budget */
-    MaglevPlant *cache;     /* the same plant: its cache of the force lag's ETDRK4 weights */
+    MaglevPlant *cache;     /* the same plant: its caches of ETDRK4 and transient weights */
+    int exact;              /* the current's transient enters RK4 through transient_squares */
 } Piece;
 
 static Piece make_piece(MaglevPlant *m, double i0, double ic, double volts, long *work) {
     Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), P(m, F_c) / P(m, m_k),
-                P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work, m};
+                P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work, m,
+                !voltage_drive(m) && P(m, T_a) > 0 && P(m, T_F) <= 0};
     return pc;
 }
 
-HOT Mech deriv(const Piece *pc, double i, Mech s, int contact) {
+/* The derivatives with the current's square isq given: a point value, or a stage weight that
+ * integrates a fast current transient exactly (transient_squares). */
+HOT Mech deriv(const Piece *pc, double isq, Mech s, int contact) {
     const MaglevPlant *m = pc->m;
     Mech d;
     d.i = 0.0;
     if (pc->voltage) {
         d.i = coil_rate(m, pc->volts, s.i, s.x, contact ? 0.0 : s.v);
-        i = s.i;
+        isq = s.i * s.i;
     }
     if (P(m, T_F) > 0) { /* d.F: the lag's input F_s/T_F (its linear part -F/T_F is the ETD's) */
-        d.F = static_force(m, i, s.x) / P(m, T_F);
+        d.F = force_gain(m, s.x) * isq / P(m, T_F);
         d.x = contact ? 0.0 : s.v;
         d.v = contact ? 0.0 : s.F / P(m, m_k) - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
         if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
@@ -351,10 +358,10 @@ HOT Mech deriv(const Piece *pc, double i, Mech s, int contact) {
     d.x = contact ? 0.0 : s.v;
     double force = 0.0;
     if (pc->kc_m > 0) {
-        force = pc->kc_m * i * i / (gap * gap);
+        force = pc->kc_m * isq / (gap * gap);
         if (pc->exponent) force *= exponent_factor(m, gap);
     }
-    if (pc->law_e) force += P(m, k_e) / P(m, m_k) * exp(-gap / P(m, z_e)) * i * i;
+    if (pc->law_e) force += P(m, k_e) / P(m, m_k) * exp(-gap / P(m, z_e)) * isq;
     d.v = contact ? 0.0 : force - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
     if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
     return d;
@@ -365,12 +372,12 @@ HOT Mech axpy(Mech s, double a, Mech d) {
     return r;
 }
 
-/* One RK4 step with the currents at its start, middle and end given. */
-HOT Mech rk4_plain(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
-    Mech k1 = deriv(pc, ia, s, contact);
-    Mech k2 = deriv(pc, im, axpy(s, h / 2, k1), contact);
-    Mech k3 = deriv(pc, im, axpy(s, h / 2, k2), contact);
-    Mech k4 = deriv(pc, ib, axpy(s, h, k3), contact);
+/* One RK4 step with the current's squares at its start, middle and end given. */
+HOT Mech rk4_plain(const Piece *pc, Mech s, double h, int contact, double qa, double qm, double qb) {
+    Mech k1 = deriv(pc, qa, s, contact);
+    Mech k2 = deriv(pc, qm, axpy(s, h / 2, k1), contact);
+    Mech k3 = deriv(pc, qm, axpy(s, h / 2, k2), contact);
+    Mech k4 = deriv(pc, qb, axpy(s, h, k3), contact);
     Mech r;
     r.x = s.x + h / 6 * (k1.x + 2 * k2.x + 2 * k3.x + k4.x);
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
@@ -381,18 +388,18 @@ HOT Mech rk4_plain(const Piece *pc, Mech s, double h, int contact, double ia, do
 }
 
 /* The same step with a force lag: ETDRK4 for F, the classic RK4 for the rest. */
-static Mech rk4_etd(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
+static Mech rk4_etd(const Piece *pc, Mech s, double h, int contact, double qa, double qm, double qb) {
     const MaglevEtd *c = etd_weights(pc->cache, h);
-    Mech k1 = deriv(pc, ia, s, contact);
+    Mech k1 = deriv(pc, qa, s, contact);
     Mech sa = axpy(s, h / 2, k1);
     sa.F = c->e2 * s.F + c->a2 * k1.F;
-    Mech k2 = deriv(pc, im, sa, contact);
+    Mech k2 = deriv(pc, qm, sa, contact);
     Mech sb = axpy(s, h / 2, k2);
     sb.F = c->e2 * s.F + c->a2 * k2.F;
-    Mech k3 = deriv(pc, im, sb, contact);
+    Mech k3 = deriv(pc, qm, sb, contact);
     Mech sc = axpy(s, h, k3);
     sc.F = c->e2 * sa.F + c->a2 * (2 * k3.F - k1.F);
-    Mech k4 = deriv(pc, ib, sc, contact);
+    Mech k4 = deriv(pc, qb, sc, contact);
     Mech r;
     r.x = s.x + h / 6 * (k1.x + 2 * k2.x + 2 * k3.x + k4.x);
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
@@ -402,14 +409,25 @@ static Mech rk4_etd(const Piece *pc, Mech s, double h, int contact, double ia, d
     return r;
 }
 
-HOT Mech rk4_i(const Piece *pc, Mech s, double h, int contact, double ia, double im, double ib) {
+HOT Mech rk4_i(const Piece *pc, Mech s, double h, int contact, double qa, double qm, double qb) {
     ++*pc->work;
-    return P(pc->m, T_F) > 0 ? rk4_etd(pc, s, h, contact, ia, im, ib) : rk4_plain(pc, s, h, contact, ia, im, ib);
+    return P(pc->m, T_F) > 0 ? rk4_etd(pc, s, h, contact, qa, qm, qb) : rk4_plain(pc, s, h, contact, qa, qm, qb);
 }
 
+static void transient_squares(const Piece *pc, const MaglevTransient *w, double D, double out[3]);
+COLD const MaglevTransient *transient_weights(MaglevPlant *m, double h);
+
 static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
-    return rk4_i(pc, s, h, contact, current_at(pc->m, pc->i0, pc->ic, tau),
-                 current_at(pc->m, pc->i0, pc->ic, tau + h / 2), current_at(pc->m, pc->i0, pc->ic, tau + h));
+    double q[3];
+    if (pc->exact) {
+        transient_squares(pc, transient_weights(pc->cache, h), current_at(pc->m, pc->i0, pc->ic, tau) - pc->ic, q);
+    } else {
+        for (int k = 0; k < 3; k++) {
+            double i = current_at(pc->m, pc->i0, pc->ic, tau + k * h / 2);
+            q[k] = i * i;
+        }
+    }
+    return rk4_i(pc, s, h, contact, q[0], q[1], q[2]);
 }
 
 static double force_now(const Piece *pc, double tau, Mech s) {
@@ -460,11 +478,11 @@ static double release_fn(const void *vctx, double dt) {
     return press(c->pc, c->tau + dt, s, c->contact);
 }
 
-/* Advances the mechanics by one substep h from tau, handling the stops. cur holds the currents
- * at tau, tau + h/2 and tau + h, so that the common case needs no exp(). */
-static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h, const double cur[3]) {
+/* Advances the mechanics by one substep h from tau, handling the stops. sq holds the RK4 stages'
+ * squared currents for the whole substep, so that the common case needs no exp(). */
+static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h, const double sq[3]) {
     const MaglevPlant *m = pc->m;
-    int full = 1; /* still the whole substep from its start: the given currents apply */
+    int full = 1; /* still the whole substep from its start: the given squares apply */
     for (int events = 0; h > 0; events++, full = 0) {
         if (events > 16) { /* chattering at a stop: finish the substep where the ball is */
             *s = rk4(pc, tau, *s, h, *contact);
@@ -472,7 +490,7 @@ static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h
             return;
         }
         if (*contact) {
-            Mech e = full ? rk4_i(pc, *s, h, *contact, cur[0], cur[1], cur[2]) : rk4(pc, tau, *s, h, *contact);
+            Mech e = full ? rk4_i(pc, *s, h, *contact, sq[0], sq[1], sq[2]) : rk4(pc, tau, *s, h, *contact);
             double p1 = press(pc, tau + h, e, *contact);
             if (p1 >= 0) { *s = e; return; }
             RootCtx c = {pc, tau, *s, 0.0, *contact};
@@ -483,7 +501,7 @@ static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h
             h -= dt;
             continue;
         }
-        Mech e = full ? rk4_i(pc, *s, h, 0, cur[0], cur[1], cur[2]) : rk4(pc, tau, *s, h, 0);
+        Mech e = full ? rk4_i(pc, *s, h, 0, sq[0], sq[1], sq[2]) : rk4(pc, tau, *s, h, 0);
         int hit = e.x > P(m, x_max) ? CONTACT_UPPER : (e.x < P(m, x_min) ? CONTACT_LOWER : CONTACT_NONE);
         if (!hit) { *s = e; return; }
         double stop = hit == CONTACT_UPPER ? P(m, x_max) : P(m, x_min);
@@ -527,6 +545,54 @@ static void lag_weights(double r, double w[5]) {
     w[4] = 6 * r * phi[4];
 }
 
+/* The current into a piece is i = i_c + D*e^(-s/T_a) from a substep's start, and the force goes
+ * with i^2 = f(s). RK4's stages sample f at 0, h/2, h, which resolves the transient only on
+ * substeps well below T_a (they cost ~45 substeps a step at T_a = 0.3 ms). Instead the stages get
+ * values f0, fm, f1 that make RK4 integrate f exactly into v and x: for x' = v, v' = c*f(s),
+ * RK4 gives v(h) = v0 + c*h*(f0 + 4*fm + f1)/6 and x(h) = x0 + h*v0 + c*h^2*(f0 + 2*fm)/6, so
+ * with A = int f/h and B = int (h - s)*f/h^2 (closed forms in phi_1, phi_2) and f1 = f(h):
+ * fm = 3A - 3B - f1/2 and f0 = 12B - 6A + f1. For a polynomial f of degree 2 these are f's own
+ * values, so RK4's order stays; a transient far below h becomes the exact impulse. */
+COLD const MaglevTransient *transient_weights(MaglevPlant *m, double h) {
+    const double T = P(m, T_a);
+    for (int k = 0; k < 2; k++)
+        if (m->tr[k].h == h && m->tr[k].T == T) return &m->tr[k];
+    MaglevTransient *w = &m->tr[m->tr_next];
+    m->tr_next ^= 1;
+    double p[5], p2[5];
+    phi_functions(-h / T, p);
+    phi_functions(-2 * h / T, p2);
+    w->h = h;
+    w->T = T;
+    w->q = p[0];
+    w->a1 = p[1];
+    w->b1 = p[2];
+    w->a2 = p2[1];
+    w->b2 = p2[2];
+    return w;
+}
+
+static void transient_squares(const Piece *pc, const MaglevTransient *w, double D, double out[3]) {
+    double ic = pc->ic, end = ic + D * w->q;
+    double A = ic * ic + 2 * ic * D * w->a1 + D * D * w->a2;
+    double B = ic * ic / 2 + 2 * ic * D * w->b1 + D * D * w->b2;
+    out[0] = 12 * B - 6 * A + end * end;
+    out[1] = 3 * A - 3 * B - end * end / 2;
+    out[2] = end * end;
+}
+
+/* With a force lag (ETDRK4, not RK4: transient_squares does not apply), a current transient
+ * i = i_c + d*e^(-t/T_a) far below the substep is an impulse: with the force g(x)*i^2 and
+ * phi = i^2 - i_c^2, F takes g*int(e^(t/T_F)*phi)/T_F and v the difference that keeps the total
+ * impulse g*int(phi), exact up to x's change during the transient. On a stop, the stop takes v's. */
+COLD void transient_impulse(const MaglevPlant *m, const Piece *pc, Mech *s, int contact) {
+    double T = P(m, T_a), ic = pc->ic, d = pc->i0 - pc->ic, g = force_gain(m, s->x);
+    double I = (2 * ic * d + d * d / 2) * T;
+    double r = 1.0 / T - 1.0 / P(m, T_F), J = 2 * ic * d / r + d * d / (r + 1.0 / T);
+    s->F += g / P(m, T_F) * J;
+    if (!contact) s->v += g / P(m, m_k) * (I - J);
+}
+
 /* Integrates [t0, t0 + len) with a constant delayed input, in parts of equal substeps (at most
  * solver_step). Returns -1 when the work budget runs out. */
 static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work) {
@@ -539,16 +605,23 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
     if (P(m, T_F) > 0 && 2 * P(m, T_F) < hmax) hmax = 2 * P(m, T_F);
     /* the smoothed friction's slope F_c/(m_k*v_c) is a fast rate near v = 0: keep RK4's h*rate <= 0.1 */
     if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c) < hmax) hmax = 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c);
-    double bounds[MAX_PARTS], hs[MAX_PARTS], tau = 0.0, di = fabs(pc.i0 - pc.ic);
+    double bounds[MAX_PARTS], hs[MAX_PARTS], tau = 0.0, di = fabs(pc.i0 - pc.ic), i_start = pc.i0;
     int nparts = 0;
+    if (!pc.voltage && P(m, T_a) > 0 && P(m, T_F) > 0 && di > TRANSIENT_EPS &&
+        IMPULSE_RATIO * P(m, T_a) <= hmax && IMPULSE_RATIO * P(m, T_a) <= P(m, T_F)) {
+        /* resolving it would cost ~45 substeps a step, which a fit of T_a towards 0 pays on every replay */
+        transient_impulse(m, &pc, &s, m->contact);
+        pc.i0 = pc.ic;
+        di = 0.0;
+    }
     if (pc.voltage) { /* RK4 on the coil equation: keep h below a fifth of its smallest time constant */
         double tau_e = (P(m, L_0) - P(m, L_i) * PI / 2) / P(m, R_c);
         if (tau_e / 5 < hmax) hmax = tau_e / 5;
-    } else if (P(m, T_a) > 0 && di > TRANSIENT_EPS) {
-        /* RK4 sees the current's transient d*e^(-t/T_a) as a fast forcing term, with an error per
-         * substep of about its size times (h/T_a)^4: the substeps start at T_a/8 (the 1 kHz closed
-         * loop then agrees with the solve_ivp reference to 1e-8 MU) and double each time it has
-         * shrunk 16-fold, until it is below 1 uA or they reach solver_step */
+    } else if (!pc.exact && P(m, T_a) > 0 && di > TRANSIENT_EPS) {
+        /* ETDRK4 (a force lag) sees the current's transient d*e^(-t/T_a) as a fast forcing term,
+         * with an error per substep of about its size times (h/T_a)^4: the substeps start at
+         * T_a/8 (the 1 kHz closed loop then agrees with the solve_ivp reference to 1e-8 MU) and
+         * double each time it has shrunk 16-fold, until it is below 1 uA or they reach solver_step */
         double T = P(m, T_a), t_fine = fmin(T * log(di / TRANSIENT_EPS), len), h = T / 8, t = 0.0;
         while (h < hmax && t < t_fine && nparts < MAX_PARTS - 1) {
             t = fmin(t + 4 * 0.69314718055994531 * T, t_fine);
@@ -575,23 +648,34 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
         /* the current's exponential by recurrence: e^(-(k+1)h/T) = e^(-kh/T) * q */
         double E = 1.0, q = 0.0, qh = 0.0;
         double ws[5] = {0};
+        /* a copy: an impact's root finding inside substep() takes other lengths through the cache */
+        MaglevTransient twc = {0};
+        if (pc.exact) twc = *transient_weights(m, h);
+        const MaglevTransient *tw = pc.exact ? &twc : NULL;
         if (Ty > 0) lag_weights(h / Ty, ws);
         if (P(m, T_a) > 0) {
             E = exp(-tau / P(m, T_a));
-            q = exp(-h / P(m, T_a));
-            qh = exp(-h / (2 * P(m, T_a)));
+            q = tw ? tw->q : exp(-h / P(m, T_a));
+            qh = tw ? 0.0 : exp(-h / (2 * P(m, T_a)));
         }
         for (long k = 0; over || k < n; k++) {
-            double cur[3] = {pc.ic + d * E, pc.ic + d * E * qh, pc.ic + d * E * q};
-            if (P(m, T_a) <= 0) cur[0] = cur[1] = cur[2] = pc.ic;
-            if (m->contact && stays_on_stop(&pc, s, m->contact, cur[0])) {
+            double i_now = P(m, T_a) > 0 ? pc.ic + d * E : pc.ic, sq[3];
+            if (tw) {
+                transient_squares(&pc, tw, d * E, sq);
+            } else {
+                double im = P(m, T_a) > 0 ? pc.ic + d * E * qh : pc.ic, ie = P(m, T_a) > 0 ? pc.ic + d * E * q : pc.ic;
+                sq[0] = i_now * i_now;
+                sq[1] = im * im;
+                sq[2] = ie * ie;
+            }
+            if (m->contact && stays_on_stop(&pc, s, m->contact, i_now)) {
                 tau += k * h;
                 resting = 1;
                 break;
             }
             if (k >= n || *work >= MAGLEV_STEP_BUDGET) return -1;
             double xa = s.x, va = s.v;
-            substep(&pc, tau + k * h, &s, &m->contact, h, cur);
+            substep(&pc, tau + k * h, &s, &m->contact, h, sq);
             if (Ty > 0) { /* x over the substep as the cubic through its ends' positions and velocities */
                 double dx = s.x - xa, c2 = 3 * dx - (2 * va + s.v) * h, c3 = -2 * dx + (va + s.v) * h;
                 xs = ws[0] * xs + ws[1] * xa + ws[2] * va * h + ws[3] * c2 + ws[4] * c3;
@@ -612,7 +696,7 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
     m->xs = Ty > 0 ? xs : s.x;
     m->v = s.v;
     m->F = P(m, T_F) > 0 ? s.F : 0.0;
-    m->i = pc.voltage ? s.i : clip(current_at(m, pc.i0, pc.ic, len), 0.0, P(m, i_max)); /* against rounding past the ends */
+    m->i = pc.voltage ? s.i : clip(current_at(m, i_start, pc.ic, len), 0.0, P(m, i_max)); /* against rounding past the ends */
     return 0;
 }
 

@@ -101,6 +101,10 @@ typedef struct {
  * cached for the two substep lengths used last (a delay splits each step into two pieces). */
 typedef struct { double h, T, e, e2, a2, f1, f2, f3; } MaglevEtd;
 
+/* The weights that integrate a current transient exactly over one substep h at one T_a
+ * (maglev_plant.c, transient_squares): q = e^-r, phi_1 and phi_2 at -r and -2r, r = h/T_a. */
+typedef struct { double h, T, q, a1, b1, a2, b2; } MaglevTransient;
+
 typedef struct {
     double p[MAGLEV_NPARAMS];   /* indexed by VR - MAGLEV_FIRST_PARAM */
     int initialized;            /* set by maglev_initialize; parameters are fixed from then on */
@@ -112,6 +116,8 @@ typedef struct {
     MaglevHistory hist;
     MaglevEtd etd[2];           /* a cache, not state: rebuilt from h and T_F when they differ */
     int etd_next;               /* the slot the next new weights replace */
+    MaglevTransient tr[2];      /* a cache like etd, for the current's transient */
+    int tr_next;
 } MaglevPlant;
 
 /* Allocation hooks, so the FMU can use the importer's allocator. */

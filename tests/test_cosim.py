@@ -130,6 +130,8 @@ def test_closed_loop_result_writes_a_record(tmp_path, fmu_path):
 
 @pytest.mark.parametrize("effect", [
     {"T_a": 3e-3},
+    {"T_a": 3e-4},                  # a transient RK4 sees only through transient_squares' weights
+    {"T_a": 3e-4, "T_F": 1e-3},     # with a force lag: ETDRK4 on substeps refined over the transient
     {"T_F": 2e-3},
     {"T_d": 2.5e-3},
     {"k_x2": -3e4},
@@ -209,3 +211,24 @@ def test_a_short_force_lag_tends_to_none():
     dev = {tf: float(np.max(np.abs(simulate(p.replace(T_F=tf), w)["y"] - none["y"]))) for tf in (1e-6, 1e-5)}
     assert 0 < dev[1e-6] < 2e-5
     assert 8 < dev[1e-5] / dev[1e-6] < 12
+
+
+@pytest.mark.parametrize("T_F", [0.0, 1e-3])
+def test_a_current_transient_far_below_a_substep_enters_as_an_impulse(T_F):
+    """A current transient far shorter than the substep: without a force lag RK4's stage weights
+    integrate it exactly (transient_squares), with one the C plant replaces it by the impulse it
+    gives the lag once T_a is at most a 64th of the substep. T_a = 1.2 us at the default 0.1 ms
+    substep and at 0.05 ms (with a force lag: an impulse, then resolved) agree in closed loop where
+    the lag itself moves y by far more, and its effect grows in proportion to T_a."""
+    p = get_params("baseline").replace(T_F=T_F)
+    w = step_w(p, 0.05, duration=1.0)
+    none = simulate(p, w)
+    assert p.solver_step == 1e-4
+    imp = simulate(p.replace(T_a=1.2e-6), w)
+    res = simulate(p.replace(T_a=1.2e-6, solver_step=5e-5), w)
+    dev = float(np.max(np.abs(imp["y"] - none["y"])))
+    assert dev > 5e-6
+    assert np.max(np.abs(imp["y"] - res["y"])) <= 5e-8         # measured 6.5e-9 MU (7.6e-9 with T_F)
+    assert np.max(np.abs(imp["u"] - res["u"])) <= 2e-7
+    dev_small = float(np.max(np.abs(simulate(p.replace(T_a=1.2e-7), w)["y"] - none["y"])))
+    assert 8 < dev / dev_small < 12
