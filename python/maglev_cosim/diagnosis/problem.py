@@ -126,5 +126,5 @@ def fit(prob: Problem, parts: Sequence[Parameterization], z0: Sequence[Sequence[
         return residuals(prob, _values(parts, z * sc))
 
     r = least_squares(fun, zs, bounds=(lo, hi), diff_step=1e-6, x_scale=1.0, max_nfev=max_nfev,
-                      ftol=1e-8, xtol=1e-8, gtol=1e-10)
+                      ftol=1e-6, xtol=1e-6, gtol=1e-10)
     return Fit(_values(parts, r.x * sc), float(np.mean(r.fun**2)), int(r.nfev))

@@ -155,13 +155,15 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     verdict names the location they find."""
     say("estimating the record's disturbances (random force on the ball, sensor noise) from the filter's "
         "innovations, for the calibrated baseline and the final model")
+    def model(values: Mapping[str, float], sim: Mapping[str, np.ndarray]) -> tuple[NoiseModel, ModelFigures]:
+        noise = estimate_noise(rec, values)
+        return noise, figures(rec, values, sim, noise)
+
     # two threads: the filter runs in C, which cffi calls with the GIL released
     with ThreadPoolExecutor(max_workers=2) as pool:
-        noise_before, noise = pool.map(lambda v: estimate_noise(rec, v), (baseline, final))
+        (noise_before, before), (noise, after) = pool.map(model, (baseline, final), (sims["before"], sims["after"]))
     say(f"  final model: random force {noise.q_force * 1e3:.3g} mN RMS (corner {noise.f_force:.3g} Hz), "
         f"sensor noise {noise.r_sensor:.3g} MU RMS; k-step prediction over {HORIZON_S * 1e3:.0f} ms")
-    before = figures(rec, baseline, sims["before"], noise_before)
-    after = figures(rec, final, sims["after"], noise)
     warnings: list[str] = []
     (sb, pb), (sf, pf) = on_bounds(baseline), on_bounds(final)
     bounds = sf       # the final model's: the calibration failed
