@@ -58,7 +58,7 @@ CASES: list[tuple[str, dict]] = [
                                       "periodic_disturbance": {"A_d": 0.008, "f_d": 50.0, "phi_d": 0.0}}}),
     ("force exponent n=3", {"effects": {"force_exponent": {"n_F": 3.0}}}),
     ("friction F_c=2mN", {"effects": {"coulomb_friction": {"F_c": 2e-3}}}),
-    ("dead zone u_dz=0.5V", {"effects": {"amplifier_dead_zone": {"u_dz": 0.5}}}),
+    ("dead zone u_dz=0.5V, tried", {"effects": {"amplifier_dead_zone": {"u_dz": 0.5}}}),
     ("OUTSIDE slew 20A/s", {"effects": {"slew_rate": {"di_max": 20.0}}}),
     ("OUTSIDE ripple 20mV/0.5mm", {"effects": {"sensor_ripple": {"A_r": 0.02, "lambda_r": 5e-4}}}),
     ("square: delay 2ms", {"effects": {"delay": {"T_d": 0.002}}, "reference": "square"}),
@@ -77,6 +77,7 @@ CASES: list[tuple[str, dict]] = [
 #: Rows that try other entries than the default (DEFAULT_EFFECTS): the opt-in ones.
 TRIED: dict[str, list[str]] = {
     "friction F_c=2mN": [*DEFAULT_EFFECTS, "coulomb_friction"],
+    "dead zone u_dz=0.5V, tried": [*DEFAULT_EFFECTS, "amplifier_dead_zone"],   # the D/A offset's twin
     "sensor lag T_y=2ms": [e for e in CATALOGUE if e != "force_lag"],    # its twin left out
     "sensor lag, all tried": list(CATALOGUE),
     "force lag, all tried": list(CATALOGUE),

@@ -109,3 +109,20 @@ def test_every_catalogue_effect_says_where_it_acts():
 
     assert {e.location for e in CATALOGUE.values()} == {"actuator", "mechanics", "sensor"}
     assert all(e.location in ("actuator", "mechanics", "sensor") for e in CATALOGUE.values())
+
+
+@pytest.mark.parametrize("u_dz", [0.2, 0.5, 1.5])
+def test_an_amplifier_dead_zone_is_the_d_a_offset_so_it_is_opt_in(tmp_path, u_dz):
+    """The amplifier cannot reverse the current: a dead zone of half-width u_dz around 0 V replays
+    as the D/A offset u_0 lowered by u_dz (to rounding; bit-identical at u_0 = 0), which every fit calibrates. A record
+    cannot show it, so the default catalogue does not try it."""
+    from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
+    from maglev_cosim.replay import replay
+
+    rec = read_record(synth_record(tmp_path / "r.csv", duration=3.0, seed=2))
+    base = baseline_params()
+    zone = replay(rec, {**base, "u_dz": u_dz})
+    offset = replay(rec, {**base, "u_0": base["u_0"] - u_dz})
+    assert np.ptp(zone["u"]) > 0.05 and np.min(zone["i"]) < 0.5 * np.max(zone["i"])   # the loop moves
+    assert np.max(np.abs(zone["y"] - offset["y"])) <= 1e-12 and np.max(np.abs(zone["u"] - offset["u"])) <= 1e-12
+    assert "amplifier_dead_zone" not in DEFAULT_EFFECTS
