@@ -15,7 +15,7 @@
 #define TIME_EPS 1e-12
 #define T_F_MIN 1e-6 /* [s] a shorter force lag is no lag at any sample rate the plant serves */
 #define TRANSIENT_EPS 1e-6 /* [A] current transient below which RK4 may take full steps */
-#define IMPULSE_RATIO 64.0 /* a current transient with T_a <= substep/64 enters as an impulse */
+#define IMPULSE_RATIO 64.0 /* with a force lag, a current transient with T_a <= substep/64 is an impulse */
 #define FF_CURRENT_EPS 1e-12 /* [A] current transient that no longer moves a force lag's input */
 #define V_COULOMB 1e-4 /* [m/s] smoothing speed of the Coulomb friction: F_c*tanh(v/V_COULOMB) */
 

@@ -323,8 +323,8 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
 #:   carries a warning that names its twin (:data:`TWINS`).
 #: - ``amplifier_dead_zone``: the amplifier cannot reverse the current, so a dead zone of half-width
 #:   ``u_dz`` around 0 V gives ``i_c = clip(k_i*(u_V - u_dz), 0, i_max)`` for every input: exactly
-#:   the D/A offset ``u_0`` lowered by ``u_dz``, which every fit calibrates (the replays are
-#:   bit-identical, ``tests/test_prediction.py``). No record can show it on this plant; it stays in
+#:   the D/A offset ``u_0`` lowered by ``u_dz``, which every fit calibrates (the replays agree to
+#:   rounding, ``tests/test_prediction.py``). No record can show it on this plant; it stays in
 #:   the catalogue for a plant whose amplifier reverses the current.
 DEFAULT_EFFECTS: tuple[str, ...] = tuple(e for e in CATALOGUE
                                          if e not in ("coulomb_friction", "sensor_lag", "amplifier_dead_zone"))

@@ -155,6 +155,7 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     verdict names the location they find."""
     say("estimating the record's disturbances (random force on the ball, sensor noise) from the filter's "
         "innovations, for the calibrated baseline and the final model")
+
     def model(values: Mapping[str, float], sim: Mapping[str, np.ndarray]) -> tuple[NoiseModel, ModelFigures]:
         noise = estimate_noise(rec, values)
         return noise, figures(rec, values, sim, noise)
