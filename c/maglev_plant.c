@@ -539,6 +539,13 @@ static void lag_weights(double r, double w[5]) {
     double phi[5];
     phi_functions(-r, phi);
     w[0] = phi[0];
+    if (r > 1.0) { /* r*phi_(k+1)(-r) = 1/k! - phi_k(-r): no inf*0 where h/T_y overflows (a denormal T_y) */
+        w[1] = 1.0 - phi[0];
+        w[2] = 1.0 - phi[1];
+        w[3] = 1.0 - 2 * phi[2];
+        w[4] = 1.0 - 6 * phi[3];
+        return;
+    }
     w[1] = r * phi[1];
     w[2] = r * phi[2];
     w[3] = 2 * r * phi[3];
@@ -874,7 +881,7 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
     }
     m->time = t_end;
     if (P(m, T_a) <= 0 && !voltage_drive(m)) m->i = current_command(m, delayed_input(m, m->time));
-    if (!isfinite(m->x) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F)) {
+    if (!isfinite(m->x) || !isfinite(m->xs) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F)) {
         double x = m->x, v = m->v, i = m->i;
         *m = before;
         return fail(msg, len, "state became non-finite at t = %g (x = %g, v = %g, i = %g); the state before "

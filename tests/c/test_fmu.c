@@ -595,6 +595,15 @@ static void test_new_effects(void) {
     CHECK(fabs(x_eff - x_base) > 1e-7, "n_F = 3 changes nothing: %g vs %g", x_eff, x_base);
     levitate_with(VR_u_dz, 0.2, &x_eff);
     CHECK(x_eff < x_base - 1e-6, "a dead zone does not lower the current: %g vs %g", x_eff, x_base);
+    /* lags far below a substep, down to denormals (h/T overflows to inf: fuzz seed 3978), are no lag */
+    const MaglevVR lags[] = {VR_T_y, VR_T_a};
+    const double tiny[] = {1e-300, 4.9e-324};
+    for (int k = 0; k < 2; k++)
+        for (int j = 0; j < 2; j++) {
+            double y_none = levitate_with(lags[k], 0.0, &x_eff), y_lag = levitate_with(lags[k], tiny[j], &x_eff);
+            CHECK(isfinite(y_lag) && fabs(y_lag - y_none) < 1e-9, "%s = %g: y %g against %g without it",
+                  maglev_variables[lags[k]].name, tiny[j], y_lag, y_none);
+        }
     /* x_n at or beyond x_0 is refused when initialisation ends, naming x_n */
     fmi2Component c = make("xn");
     fmi2ValueReference xn = VR_x_n;
