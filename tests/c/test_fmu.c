@@ -19,26 +19,7 @@
 
 #define GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 
-static char last_log[1024];
-static int n_logs = 0;
-
-static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
-                   fmi2String fmt, ...) {
-    (void)env; (void)name; (void)status; (void)category;
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(last_log, sizeof last_log, fmt, ap);
-    va_end(ap);
-    n_logs++;
-}
-
-static const fmi2CallbackFunctions callbacks = {logger, calloc, free, NULL, NULL};
-
-static int logged(const char *needle) { return strstr(last_log, needle) != NULL; }
-
-static fmi2Component make(const char *name) {
-    return fmi2Instantiate(name, fmi2CoSimulation, GUID, NULL, &callbacks, fmi2False, fmi2False);
-}
+#include "fmi2_host.h"
 
 static const fmi2ValueReference VR_OUT[] = {VR_y, VR_x, VR_v, VR_i};
 

@@ -14,24 +14,7 @@
 
 #define GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0101}"
 
-static char last_log[1024];
-
-static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
-                   fmi2String fmt, ...) {
-    (void)env; (void)name; (void)status; (void)category;
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(last_log, sizeof last_log, fmt, ap);
-    va_end(ap);
-}
-
-static const fmi2CallbackFunctions callbacks = {logger, calloc, free, NULL, NULL};
-
-static int logged(const char *needle) { return strstr(last_log, needle) != NULL; }
-
-static fmi2Component make(const char *name) {
-    return fmi2Instantiate(name, fmi2CoSimulation, GUID, NULL, &callbacks, fmi2False, fmi2False);
-}
+#include "fmi2_host.h"
 
 static fmi2Status set1(fmi2Component c, MaglevPidVR vr, double v) {
     fmi2ValueReference r = vr;
