@@ -331,10 +331,14 @@ static int advance(MaglevPlant *m, double u, double d, double ts, char *msg, siz
 
 int maglev_replay_closed_loop_injected(const double *params, const MaglevController *c, const double *w, size_t n,
                                        double u_hold, const double *du, const double *dF, const double *dy,
-                                       double *u, double *y, double *x, double *v, double *i, char *msg,
-                                       size_t len) {
+                                       double y_step, double u_step, double *u, double *y, double *x, double *v,
+                                       double *i, char *msg, size_t len) {
     MaglevPlant m;
     if (ctl_check(c, u_hold, msg, len)) return -1;
+    if (!(y_step >= 0 && isfinite(y_step)) || !(u_step >= 0 && isfinite(u_step))) {
+        snprintf(msg, len, "converter steps y_step = %g, u_step = %g MU must be >= 0 and finite", y_step, u_step);
+        return -1;
+    }
     for (size_t k = 0; k < n; k++)
         if ((du && !isfinite(du[k])) || (dF && !isfinite(dF[k])) || (dy && !isfinite(dy[k]))) {
             snprintf(msg, len, "sample %zu: an injected signal (du, dF or dy) is not finite", k);
@@ -357,11 +361,13 @@ int maglev_replay_closed_loop_injected(const double *params, const MaglevControl
         }
         double yk;
         sample(&m, k, y, x, v, i, &yk);
-        if (dy) {
-            yk += dy[k];
+        if (dy || y_step > 0) {
+            if (dy) yk += dy[k];
+            if (y_step > 0) yk = y_step * round(yk / y_step);
             if (y) y[k] = yk;
         }
         double uk = ctl_step(c, &cs, w[k], yk, maglev_get(&m, VR_i));
+        if (u_step > 0) uk = u_step * round(uk / u_step);
         if (u) u[k] = uk;
         /* the FMU's clock: the master adds ts to the previous communication point */
         m.time = t;
@@ -378,7 +384,8 @@ int maglev_replay_closed_loop_injected(const double *params, const MaglevControl
 int maglev_replay_closed_loop(const double *params, const MaglevController *c, const double *w, size_t n,
                               double u_hold, double *u, double *y, double *x, double *v, double *i,
                               char *msg, size_t len) {
-    return maglev_replay_closed_loop_injected(params, c, w, n, u_hold, NULL, NULL, NULL, u, y, x, v, i, msg, len);
+    return maglev_replay_closed_loop_injected(params, c, w, n, u_hold, NULL, NULL, NULL, 0.0, 0.0, u, y, x, v, i, msg,
+                                              len);
 }
 
 /* The Kalman update with one scalar measurement whose row of H has the single entry h at state j:

@@ -70,12 +70,14 @@ int maglev_replay_closed_loop(const double *params, const MaglevController *c, c
 /* The same closed loop with signals injected at the three places a model error can enter (each
  * may be NULL): du[k] [MU] added to the controller's output on its way to the plant (actuator),
  * dF[k] [N] a force on the ball held over sample k (mechanics, as the filter's random force), dy[k]
- * [MU] added to the reading the controller sees and y reports (sensor). u reports the
- * controller's output. Used to locate a residual no catalogue effect explains. */
+ * [MU] added to the reading the controller sees and y reports (sensor). y_step, u_step [MU]: the
+ * A/D and D/A steps (0: none), to which the reading (after dy) and the controller's output are
+ * rounded, as a record's converters do. u reports the controller's output. Used to locate a
+ * residual no catalogue effect explains, and to simulate records of a model with its noise. */
 int maglev_replay_closed_loop_injected(const double *params, const MaglevController *c, const double *w, size_t n,
                                        double u_hold, const double *du, const double *dF, const double *dy,
-                                       double *u, double *y, double *x, double *v, double *i, char *msg,
-                                       size_t msglen);
+                                       double y_step, double u_step, double *u, double *y, double *x, double *v,
+                                       double *i, char *msg, size_t msglen);
 
 /* Prediction-error replay: an extended Kalman filter on the plant above, driven by the measured
  * input u, corrects the state with each measured reading y, and from every stride-th sample

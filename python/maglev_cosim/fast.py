@@ -142,7 +142,8 @@ def _controller(m: SimpleNamespace, controller):
 
 def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray, *,
                 pid: Controller | None = None, u_hold: float | None = None, du: np.ndarray | None = None,
-                dF: np.ndarray | None = None, dy: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                dF: np.ndarray | None = None, dy: np.ndarray | None = None, y_step: float = 0.0,
+                u_step: float = 0.0) -> dict[str, np.ndarray]:
     """The closed loop (plant + controller) over reference ``w`` [MU] in one C call: the low
     level of :func:`maglev_cosim.loop.simulate` (``backend="fast"``), which most callers want.
 
@@ -152,7 +153,8 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
     input before t = 0 (default: the equilibrium input at ``x_start``). ``du`` [MU], ``dF`` [N],
     ``dy`` [MU]: signals injected at the actuator (added to the controller's output on its way to
     the plant), on the ball (a force held over each sample) and at the sensor (added to the
-    reading), each of the length of ``w`` or None. Returns arrays ``t`` [s], ``w``, ``u`` (the
+    reading), each of the length of ``w`` or None. ``y_step``, ``u_step`` [MU]: the A/D and D/A
+    steps to which the reading and the controller's output are rounded (0: no rounding). Returns arrays ``t`` [s], ``w``, ``u`` (the
     controller's output), ``y`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A]."""
     from .pid import PID
 
@@ -177,6 +179,7 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
             raise ValueError(f"{name} has shape {a.shape}, the reference has {n} samples")
         inj.append(ptr(a))
     rc = m.lib.maglev_replay_closed_loop_injected(ptr(pv), cpid, ptr(w), n, float(u_hold), *inj,
+                                                  float(y_step), float(u_step),
                                                   *(ptr(out[k]) for k in ("u", "y", "x", "v", "i")), msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())

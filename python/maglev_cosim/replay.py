@@ -54,14 +54,15 @@ def replay(rec: Record, params: Mapping[str, float] | np.ndarray, *, w: np.ndarr
 
 def replay_injected(rec: Record, params: Mapping[str, float] | np.ndarray, *, du: np.ndarray | None = None,
                     dF: np.ndarray | None = None, dy: np.ndarray | None = None,
-                    w: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                    w: np.ndarray | None = None, y_step: float = 0.0, u_step: float = 0.0) -> dict[str, np.ndarray]:
     """:func:`replay` with signals injected where a model error can enter the loop: ``du`` [MU]
     added to the controller's output on its way to the plant (actuator), ``dF`` [N] a force on the
     ball held over each sample (mechanics), ``dy`` [MU] added to the reading (sensor); each one
-    value per sample, or None. Same start as :func:`replay`; with no injection the same result."""
+    value per sample, or None; ``y_step``, ``u_step`` [MU]: the converters' steps (0: none). Same
+    start as :func:`replay`; with no injection the same result."""
     start, u_hold = _settled_at_first_reading(rec, params)
     return fast.closed_loop(start, rec.w if w is None else w, pid=record_controller(rec), u_hold=u_hold,
-                            du=du, dF=dF, dy=dy)
+                            du=du, dF=dF, dy=dy, y_step=y_step, u_step=u_step)
 
 # ----------------------------------------------------------------------------- prediction-error replay
 
