@@ -101,15 +101,17 @@ def converter_step(v: np.ndarray) -> float:
     return q if np.max(np.abs(k - np.round(k))) < 0.1 else 0.0
 
 
-def own_share(rec: Record, values: Mapping[str, float], noise: NoiseModel,
+def own_share(rec: Record, values: Mapping[str, float], noise: NoiseModel, steps: tuple[float, float] | None = None,
               draws: int = OWN_SHARE_DRAWS) -> float:
     """The innovations' predictable share that a model leaves on records it makes itself: its
     closed loop on the record's reference, driven by its own disturbance estimate (the filter's
     random force on the ball, and white sensor noise), with the reading and the input rounded to
-    the record's converter steps (:func:`converter_step`), then replayed through the same filter.
-    The mean over ``draws`` fixed seeds, so a diagnosis repeats. A coarse converter with little
-    sensor noise makes this several %: that much is no sign of something missing."""
-    n, q_y, q_u = rec.n, converter_step(rec.y), converter_step(rec.u)
+    the record's converter steps (``steps``: A/D and D/A [MU]; default :func:`converter_step` of
+    y and u), then replayed through the same filter. The mean over ``draws`` fixed seeds, so a
+    diagnosis repeats. A coarse converter with little sensor noise makes this several %: that much
+    is no sign of something missing."""
+    n = rec.n
+    q_y, q_u = steps if steps is not None else (converter_step(rec.y), converter_step(rec.u))
     a = float(np.exp(-2 * np.pi * noise.f_force * rec.ts))
     dither = float(np.sqrt(max(noise.r_sensor ** 2 - q_y ** 2 / 12, 0.0)))   # the sensor noise beyond rounding
     shares = []
@@ -236,16 +238,17 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
             evidence[loc] = {"effect": c["effect"], "held_out_gain": float(c["held_out_gain"])}
     share, share_own = after.predictable_share, 0.0
     if share > UNEXPLAINED_SHARE:
+        steps = converter_step(rec.y), converter_step(rec.u)
         try:
-            share_own = own_share(rec, final, noise)
+            share_own = own_share(rec, final, noise, steps)
         except ValueError as exc:    # a simulated record the plant refuses: judge by the share alone
             warnings.append(f"the final model's own records could not be simulated ({exc}): its predictable "
                             f"share of the innovations is judged against {100 * UNEXPLAINED_SHARE:.0f} % alone")
         if share <= UNEXPLAINED_SHARE + share_own:
             warnings.append(f"the final model leaves {100 * share:.1f} % of the filter's innovations predictable, "
                             f"and {100 * share_own:.1f} % on records it simulates itself with the record's "
-                            f"disturbances and converter steps (A/D {converter_step(rec.y):.3g} MU, D/A "
-                            f"{converter_step(rec.u):.3g} MU): the converters' rounding, not a missing effect")
+                            f"disturbances and converter steps (A/D {steps[0]:.3g} MU, D/A {steps[1]:.3g} MU): "
+                            f"the converters' rounding, not a missing effect")
     lacking = share > UNEXPLAINED_SHARE + share_own or after.prediction["y"] < MIN_PREDICTION_FIT
     corrections: list = []
     generic_location, rivals, per_location = "undetermined", [], {}
