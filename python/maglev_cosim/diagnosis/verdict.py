@@ -121,7 +121,8 @@ def own_share(rec: Record, values: Mapping[str, float], noise: NoiseModel, steps
                      zi=[a * rng.standard_normal()])[0] * noise.q_force
         sim = replay_injected(rec, values, dF=dF, dy=rng.standard_normal(n) * dither, y_step=q_y, u_step=q_u)
         own = dataclasses.replace(rec, u=sim["u"], y=sim["y"])
-        shares.append(predictable_share(predict(own, values, noise)["innov"], own.u))
+        innov = predict(own, values, noise, horizon_s=0.0)["innov"]    # the innovations only: no k-step runs
+        shares.append(predictable_share(innov, own.u))
     return float(np.mean(shares))
 
 
