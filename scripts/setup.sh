@@ -7,19 +7,15 @@
 # when its sources changed (a hash of pyproject.toml, CMakeLists.txt, modelDescription.xml, c/, python/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# The Windows binaries (README, "Windows binaries"): the mingw-w64 cross compiler and wine, from Debian,
-# installed here when missing and when this runs as root with apt-get (CI). Without them, or when the
-# installation fails, the FMUs carry the Linux binaries only and the Windows test says why it skips.
-# MAGLEV_NO_APT=1 skips the installation.
-win64_tools() {
-  local need=()
-  command -v x86_64-w64-mingw32-gcc >/dev/null 2>&1 || need+=(gcc-mingw-w64-x86-64)
-  # Debian's wine64 package puts its loader at /usr/lib/wine/wine64 (the "wine" package adds /usr/bin/wine)
-  command -v wine64 >/dev/null 2>&1 || [ -x /usr/lib/wine/wine64 ] || need+=(wine64)
-  [ "${#need[@]}" -eq 0 ] && return 0
+# apt_install <what is missing without them> <package>...: installs the Debian packages (--no-install-recommends)
+# when this runs as root with apt-get (CI). Without root or apt-get, with MAGLEV_NO_APT=1, or when the
+# installation fails, it prints a notice saying what is missing and returns 0: never fatal.
+apt_install() {
+  local without=$1; shift
+  local need=("$@")
   if [ -n "${MAGLEV_NO_APT:-}" ] || [ "$(id -u)" -ne 0 ] || ! command -v apt-get >/dev/null 2>&1; then
     echo "[setup] notice: ${need[*]} missing and not installed (needs root and apt-get; MAGLEV_NO_APT=${MAGLEV_NO_APT:-}):" \
-         "the FMUs get no Windows binaries"
+         "$without"
     return 0
   fi
   echo "[setup] installing ${need[*]} from Debian (apt-get, --no-install-recommends)"
@@ -30,7 +26,7 @@ win64_tools() {
     echo "[setup] apt-get install failed; running apt-get update and trying again"
     if ! { DEBIAN_FRONTEND=noninteractive apt-get -q update -o DPkg::Lock::Timeout=120 >>"$log" 2>&1 &&
            DEBIAN_FRONTEND=noninteractive "${apt[@]}" install "${need[@]}" >>"$log" 2>&1; }; then
-      echo "[setup] notice: installing ${need[*]} failed (last lines of $log below): the FMUs get no Windows binaries"
+      echo "[setup] notice: installing ${need[*]} failed (last lines of $log below): $without"
       tail -n 5 "$log" | sed 's/^/[setup]   /'
       return 0
     fi
@@ -38,7 +34,25 @@ win64_tools() {
   rm -f "$log"
   echo "[setup] installed ${need[*]} in $((SECONDS - t0)) s"
 }
+# The Windows binaries (README, "Windows binaries"): the mingw-w64 cross compiler and wine, from Debian,
+# installed here when missing. Without them the FMUs carry the Linux binaries only and the Windows test
+# says why it skips.
+win64_tools() {
+  local need=()
+  command -v x86_64-w64-mingw32-gcc >/dev/null 2>&1 || need+=(gcc-mingw-w64-x86-64)
+  # Debian's wine64 package puts its loader at /usr/lib/wine/wine64 (the "wine" package adds /usr/bin/wine)
+  command -v wine64 >/dev/null 2>&1 || [ -x /usr/lib/wine/wine64 ] || need+=(wine64)
+  [ "${#need[@]}" -eq 0 ] && return 0
+  apt_install "the FMUs get no Windows binaries" "${need[@]}"
+}
 win64_tools
+# Headless Chromium (Debian's chromium, about 100 MB to download, 390 MB installed), in which
+# tests/test_report_browser.py opens report.html; without it that test says why it skips.
+browser() {
+  command -v chromium >/dev/null 2>&1 && return 0
+  apt_install "tests/test_report_browser.py skips (report.html is not opened in a browser)" chromium
+}
+browser
 
 if [ ! -x .venv/bin/python ]; then
   echo "[setup] creating virtual environment .venv"
