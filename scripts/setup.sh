@@ -7,7 +7,7 @@
 # when its sources changed (a hash of pyproject.toml, CMakeLists.txt, modelDescription.xml, c/, python/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# The Windows binaries (README, "Windows binaries"): the mingw-w64 cross compiler and wine, from Debian,
+# The Windows binaries (docs/fmu.md, "Windows binaries"): the mingw-w64 cross compiler and wine, from Debian,
 # installed here when missing and when this runs as root with apt-get (CI). Without them, or when the
 # installation fails, the FMUs carry the Linux binaries only and the Windows test says why it skips.
 # MAGLEV_NO_APT=1 skips the installation.
