@@ -2,7 +2,7 @@
 
 Run: ``.venv/bin/python scripts/bench_records.py [--rows 1000000]``. Prints a table of wall times
 and rows per second for a good record and for records whose only fault is in the last row, as a
-user's logger might leave them. The figures go into the README's figures table (target: 10^6
+user's logger might leave them. The figures go into docs/benchmarks.md (target: 10^6
 rows read or refused in at most 2 s).
 """
 

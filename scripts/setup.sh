@@ -34,7 +34,7 @@ apt_install() {
   rm -f "$log"
   echo "[setup] installed ${need[*]} in $((SECONDS - t0)) s"
 }
-# The Windows binaries (README, "Windows binaries"): the mingw-w64 cross compiler and wine, from Debian,
+# The Windows binaries (docs/fmu.md, "Windows binaries"): the mingw-w64 cross compiler and wine, from Debian,
 # installed here when missing. Without them the FMUs carry the Linux binaries only and the Windows test
 # says why it skips.
 win64_tools() {

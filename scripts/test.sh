@@ -11,7 +11,7 @@ cmake -S . -B build-asan -DCMAKE_BUILD_TYPE=Debug -DMAGLEV_SANITIZE=ON >/dev/nul
 cmake --build build-asan --parallel 2 >/dev/null
 (cd build-asan && ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --output-on-failure)
-# The Windows binaries (README, "Windows binaries"): with wine, the C tests of the cross-compiled build
+# The Windows binaries (docs/fmu.md, "Windows binaries"): with wine, the C tests of the cross-compiled build
 # (build/win64) under wine and tests/test_win64.py (the importer under wine against the Linux run);
 # without wine (or a wine that cannot run here), tests/test_win64.py checks the DLLs' export tables.
 wine=$(command -v wine64 || { [ -x /usr/lib/wine/wine64 ] && echo /usr/lib/wine/wine64; } || true)

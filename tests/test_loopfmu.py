@@ -98,7 +98,19 @@ def test_container_fmu_levitates_as_the_python_loop_does(tmp_path, fmu_path):
     pytest.importorskip("fmu_manipulation_toolbox", reason="fmu-manipulation-toolbox (the test extra) is not installed")
     from fmpy import simulate_fmu
 
-    fmu = write_container(tmp_path / "maglev_loop.fmu", fmu_path, pid_fmu_path())
+    import logging
+
+    records: list[logging.LogRecord] = []
+    handler = logging.Handler(logging.WARNING)
+    handler.emit = records.append
+    toolbox_log = logging.getLogger("fmu_manipulation_toolbox")
+    toolbox_log.addHandler(handler)
+    try:
+        fmu = write_container(tmp_path / "maglev_loop.fmu", fmu_path, pid_fmu_path())
+    finally:
+        toolbox_log.removeHandler(handler)
+    # nothing dangling, and the feedback loop's expected initialisation warning filtered (docs/fmu.md)
+    assert [r.getMessage() for r in records] == []
     s = loop_settings()
     ts = s["pid"]["ts"]
     r = simulate_fmu(str(fmu), stop_time=STOP, step_size=ts, output_interval=ts, output=["y", "x", "u", "w"])
@@ -139,3 +151,18 @@ def test_pid_fmu_sources_build_a_working_binary(tmp_path):
               output_interval=1e-3, output=["u"], input=np.array([(0.0, 0.41)], dtype=[("time", float), ("y", float)]))
     a, b = simulate_fmu(unzipdir, **kw), simulate_fmu(str(pid_fmu_path()), **kw)
     assert np.array_equal(a["u"], b["u"]) and len(set(a["u"])) > 10
+
+
+def test_container_links_or_exposes_every_port_of_both_fmus(fmu_path):
+    """No port left dangling (fmu-manipulation-toolbox warns about each one when setup.sh builds the
+    container): every input and output of the plant and the PID is linked, or is the container's."""
+    from maglev_cosim.loopfmu import container_description
+
+    desc = container_description(loop_settings())
+    used = {(f, p) for f, p, _, _ in desc["link"]} | {(f, p) for _, _, f, p in desc["link"]}
+    used |= {(f, p) for _, f, p in desc["input"]} | {(f, p) for f, p, _ in desc["output"]}
+    for name, path in (("maglev.fmu", fmu_path), ("maglev_pid.fmu", pid_fmu_path())):
+        ports = {v.name for v in read_model_description(str(path)).modelVariables
+                 if v.causality in ("input", "output")}
+        assert ports and {p for f, p in used if f == name} >= ports, name
+    assert ["w_in", "maglev_pid.fmu", "w_in"] in desc["input"]

@@ -1,4 +1,4 @@
-"""The Windows binaries (README, "Windows binaries"): the FMUs carry ``maglev.dll`` cross-compiled with
+"""The Windows binaries (docs/fmu.md, "Windows binaries"): the FMUs carry ``maglev.dll`` cross-compiled with
 mingw-w64 (``binaries/win64`` for FMI 2.0, ``binaries/x86_64-windows`` for FMI 3.0). Checked here:
 
 - every DLL exports exactly the FMI functions its standard's header declares and imports only Windows'

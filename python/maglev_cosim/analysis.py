@@ -80,44 +80,78 @@ def root_locus_branches(p: PlantParams, x_op: float, cfg: PID, gains: np.ndarray
     return np.array([np.sort_complex(np.roots(den + K * num)) for K in gains])
 
 
-def plot_root_locus(p: PlantParams, x_op: float, cfg: PID, path: str | Path) -> Path:
-    """Root locus of the continuous design (Fig. 16/17) with the chosen gain K = K_p marked."""
+def plot_root_locus(p: PlantParams, x_op: float, cfg: PID, path: str | Path, *, params_label: str | None = None) -> Path:
+    """Root locus of the continuous design (Fig. 16/17) with the chosen gain K = K_p marked: the
+    whole locus, and beside it a zoom on the cluster at the origin (the integrator's pole, the PID's
+    slow zero and the slow closed-loop pole, a few 1/s apart where the whole plot spans hundreds).
+    The title names the parameter set (``params_label``, default :func:`~.params.set_label`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
+
+    from .params import set_label
 
     gains = np.logspace(-3, 2, 600)
     br = root_locus_branches(p, x_op, cfg, gains)
     chosen = root_locus_branches(p, x_op, cfg, np.array([cfg.kp]))[0]
     ol = np.append(np.asarray(control.ss2tf(linearize(p, x_op)).poles()), 0.0)   # plant and integrator
-    fig, ax = plt.subplots(figsize=(7, 5.5))
-    for k in range(br.shape[1]):
-        ax.plot(br[:, k].real, br[:, k].imag, ".", ms=1.5, color="tab:blue")
-    ax.plot(ol.real, ol.imag, "x", color="k", ms=9, label="open-loop poles (Eq. 19 and the integrator)")
     z = np.roots([cfg.kd, cfg.kp, cfg.ki])
-    ax.plot(z.real, z.imag, "o", mfc="none", color="k", ms=8, label="PID zeros (Eq. 21)")
-    ax.plot(chosen.real, chosen.imag, "s", color="tab:red", ms=7, label=f"closed loop, K = {cfg.kp}")
-    ax.axvline(0, color="0.7", lw=0.8)
-    ax.set_xlim(-450, 150)
-    ax.set_ylim(-300, 300)
-    ax.set_xlabel("Re s [1/s]")
-    ax.set_ylabel("Im s [1/s]")
-    ax.set_title(f"Root locus of the PID design at x = {x_op * 1e3:.1f} mm (Fig. 16/17)")
-    ax.legend(fontsize=8)
+    # the zoom: around the poles and zeros within 10 1/s of the origin, with a margin
+    near = np.concatenate([ol, z, chosen])
+    near = near[np.abs(near) < 10.0]
+    half = max(1.0, 1.5 * float(np.max(np.abs(near.real - near.real.mean())))) if len(near) else 5.0
+    cx = float(near.real.mean()) if len(near) else 0.0
+    zoom = (cx - half, cx + half, -half, half)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5), gridspec_kw={"width_ratios": [1.35, 1]})
+    for ax in axes:
+        for k in range(br.shape[1]):
+            ax.plot(br[:, k].real, br[:, k].imag, ".", ms=1.5, color="tab:blue")
+        ax.plot(ol.real, ol.imag, "x", color="k", ms=9, label="open-loop poles (Eq. 19 and the integrator)")
+        ax.plot(z.real, z.imag, "o", mfc="none", color="k", ms=8, label="PID zeros (Eq. 21)")
+        ax.plot(chosen.real, chosen.imag, "s", color="tab:red", ms=7, label=f"closed loop, K = {cfg.kp}")
+        ax.axvline(0, color="0.7", lw=0.8)
+        ax.axhline(0, color="0.85", lw=0.6)
+        ax.set_xlabel("Re s [1/s]")
+        ax.set_ylabel("Im s [1/s]")
+    full, zax = axes
+    full.set_xlim(-450, 150)
+    full.set_ylim(-300, 300)
+    full.add_patch(Rectangle((zoom[0], zoom[2]), zoom[1] - zoom[0], zoom[3] - zoom[2], fill=False,
+                             ec="tab:orange", lw=1.2))
+    full.annotate("zoomed at right", xy=(zoom[1], zoom[3]), xytext=(30, 60), textcoords="offset points",
+                  color="tab:orange", fontsize=8, arrowprops={"arrowstyle": "-", "color": "tab:orange"})
+    full.set_title("whole locus", fontsize=10)
+    full.legend(fontsize=8, loc="lower left")
+    zax.set_xlim(zoom[0], zoom[1])
+    zax.set_ylim(zoom[2], zoom[3])
+    for s in zax.spines.values():
+        s.set_edgecolor("tab:orange")
+    for v in near:
+        if v.imag >= 0:
+            zax.annotate(f"{v.real:.2f}", xy=(v.real, v.imag), xytext=(0, 10), textcoords="offset points",
+                         ha="center", fontsize=8)
+    zax.set_title("zoom on the origin: integrator pole,\nslow PID zero, slow closed-loop pole", fontsize=10)
+    label = params_label or set_label(p)
+    fig.suptitle(f"Root locus of the PID design at x = {x_op * 1e3:.1f} mm (Fig. 16/17), {label}", fontsize=11)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
 
 
-def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PID, path: str | Path) -> Path:
+def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PID, path: str | Path, *,
+                          params_label: str | None = None) -> Path:
     """Bode plot of the discrete closed loop, reference to position: magnitude with the −3 dB
-    bandwidth marked (Fig. 18) and phase, up to the Nyquist frequency."""
+    bandwidth marked (Fig. 18) and phase, up to the Nyquist frequency. The title names the
+    parameter set (``params_label``, default :func:`~.params.set_label`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from .params import set_label
 
     T = discrete_closed_loop(p, x_op, cfg)
     f = np.logspace(-1, np.log10(0.5 / cfg.ts * 0.999), 2000)
@@ -128,7 +162,8 @@ def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PID, path: str | Pat
     ax[0].axhline(-3, color="0.6", ls="--", lw=0.8)
     ax[0].axvline(bw, color="tab:red", ls=":", label=f"bandwidth {bw:.1f} Hz (paper: about 50 Hz)")
     ax[0].set_ylabel("|T| [dB]")
-    ax[0].set_title("Closed loop, reference to position (Fig. 18)")
+    ax[0].set_title(f"Closed loop, reference to position (Fig. 18), x = {x_op * 1e3:.1f} mm\n"
+                    f"{params_label or set_label(p)}", fontsize=10)
     ax[0].legend(fontsize=8)
     ax[1].semilogx(f, np.degrees(np.unwrap(np.angle(resp))), color="tab:blue")
     ax[1].axvline(bw, color="tab:red", ls=":")

@@ -95,7 +95,7 @@ def cmd_step(a: argparse.Namespace) -> dict:
 
     from .linear import operating_point
     from .loop import reference_signal, simulate
-    from .params import as_params
+    from .params import as_params, set_label
     from .pid import PID
 
     from .fmu import ensure_fmu
@@ -149,10 +149,16 @@ def cmd_step(a: argparse.Namespace) -> dict:
     ax2.set_ylim((lo - base) / slope * 1e3 + a.position * 1e3, (hi - base) / slope * 1e3 + a.position * 1e3)
     ax[0].legend(loc="lower right", fontsize=8)
     ax[1].plot(res["t"], res["u"], color="tab:green", lw=1, label="u (controller output)")
+    # u's limits: the D/A converter's range ±1 MU (Eq. 1), and the PID's output limits inside it
+    ax[1].axhspan(-1.0, 1.0, color="tab:green", alpha=0.06, lw=0)
+    for lim in (-1.0, 1.0):
+        ax[1].axhline(lim, color="tab:red", lw=1, ls="--", label="D/A range ±1 MU" if lim > 0 else None)
+    ax[1].axhline(pid.u_min, color="0.4", lw=0.8, ls=":", label=f"PID limits [{pid.u_min:g}, {pid.u_max:g}] MU")
+    ax[1].set_ylim(-1.1, 1.1)
     ax[1].set_ylabel("u [MU]")
     ax[1].set_xlabel("t [s]")
-    ax[1].legend(loc="upper right", fontsize=8)
-    fig.suptitle(f"CE152 closed loop, paper's discrete PID (Eq. 24/25), parameters '{a.params}'")
+    ax[1].legend(loc="lower right", fontsize=8, ncol=3)
+    fig.suptitle(f"CE152 closed loop, paper's discrete PID (Eq. 24/25), {set_label(a.params)}", fontsize=11)
     fig.tight_layout()
     fig.savefig(out / "step.png", dpi=110)
     plt.close(fig)
@@ -444,13 +450,19 @@ def cmd_synth(a: argparse.Namespace) -> dict:
 
 def cmd_demo(a: argparse.Namespace) -> dict:
     from .fmu import ensure_fmu
+    from .params import set_label
 
     out = Path(a.out)
     fmu = ensure_fmu(None)
     _progress(f"FMU: {fmu}")
     # each step through the real parser, so that the demo gets every option's default from one place
     parse = build_parser().parse_args
+    # Two parameter sets, on purpose (each plot's title names its own): the step runs the FMU with its
+    # defaults (section3); the linearisation takes the set that reproduces the paper's Eq. 18/19 (eq18).
+    # The diagnosis starts from 'baseline' (section3 with T_a = 0) and calibrates it on the record.
+    _progress(f"closed-loop step: {set_label('section3')}")
     cmd_step(parse(["step", "--out", str(out / "step"), "--fmu", str(fmu)]))
+    _progress(f"linearisation (to compare with the paper's Eq. 18/19): {set_label('eq18')}")
     cmd_linearize(parse(["linearize", "--params", "eq18", "--current", "0.5612",
                          "--json", str(out / "linearize.json"), "--plots", str(out / "linearize")]))
     rec_path = out / "record_undeclared_effect.csv"

@@ -129,3 +129,21 @@ def get_params(name: str) -> PlantParams:
         return PARAMETER_SETS[name]
     except KeyError:
         raise ValueError(f"unknown parameter set {name!r}: choose one of {', '.join(PARAMETER_SETS)}") from None
+
+
+#: What each named set is, in a few words (plot titles and the demo's log say which set they show).
+SET_DESCRIPTIONS: dict[str, str] = {
+    "section3": "Section 3, the FMU's defaults",
+    "eq18": "the reading of Eq. 18: T_a = 3 ms, k_FV = 2.4·m_k",
+    "baseline": "Section 3 with T_a = 0, Eq. 5",
+}
+
+
+def set_label(params: PlantParams | str) -> str:
+    """``"parameters 'eq18' (the reading of Eq. 18: ...)"`` for a named set (by name or by value),
+    ``"parameters: custom"`` for any other values: what a plot title says about its plant."""
+    name = params if isinstance(params, str) else next(
+        (n for n, p in PARAMETER_SETS.items() if p == params), None)
+    if name not in PARAMETER_SETS:
+        return "parameters: custom"
+    return f"parameters '{name}' ({SET_DESCRIPTIONS[name]})"

@@ -18,6 +18,7 @@ import numpy as np
 
 from .diagnosis import CATALOGUE, CRITERION, Diagnosis
 from .metrics import nrmse_fit, psd, resid
+from .params import set_label
 from .record import Record
 
 
@@ -157,6 +158,10 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
 
     files = []
     before, after = d.sims["before"], d.sims["after"]
+    # the model each plot shows: the 'baseline' set (section3 with T_a = 0) calibrated on this record,
+    # "after" with the effects found
+    model = (f"model: {set_label('baseline')}, calibrated on the record; after: + "
+             f"{', '.join(d.selected) or 'no effect'}")
 
     fig, ax = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
     ax[0].plot(rec.t, rec.w, color="0.6", lw=1, label="reference w")
@@ -169,7 +174,7 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].legend(loc="upper right", fontsize=8, ncol=4)
     ax[1].set_xlabel("t [s]")
     fig.suptitle("Measured versus simulated closed loop (free run; fit = 100·(1 − ‖y − ŷ‖/‖y − mean y‖), "
-                 "as MATLAB's compare)", fontsize=10)
+                 "as MATLAB's compare)\n" + model, fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "measured_vs_simulated.png", dpi=110)
     plt.close(fig)
@@ -194,7 +199,7 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].set_ylabel(f"{sig} [MU]")
         ax[k].legend(loc="upper right", fontsize=8, ncol=4)
     ax[1].set_xlabel("t [s]")
-    fig.suptitle("Zoom where the calibrated baseline misses most")
+    fig.suptitle("Zoom where the calibrated baseline misses most" + "\n" + model, fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "zoom.png", dpi=110)
     plt.close(fig)
@@ -207,7 +212,7 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].set_ylabel(f"{sig} measured - simulated [MU]")
         ax[k].legend(loc="upper right", fontsize=8)
     ax[1].set_xlabel("t [s]")
-    fig.suptitle("Residual before and after")
+    fig.suptitle("Residual before and after" + "\n" + model, fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "residual.png", dpi=110)
     plt.close(fig)
@@ -222,7 +227,7 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].legend(loc="upper right", fontsize=8)
         ax[k].grid(True, which="both", alpha=0.3)
     ax[1].set_xlabel("frequency [Hz]")
-    fig.suptitle("Power spectral density of the residual (Welch, 2 s Hann segments)")
+    fig.suptitle("Power spectral density of the residual (Welch, 2 s Hann segments)" + "\n" + model, fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "spectrum.png", dpi=110)
     plt.close(fig)
@@ -243,13 +248,13 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k, 0].legend(fontsize=7, loc="upper right")
     for j in range(2):
         ax[1, j].set_xlabel("lag [ms]")
-    fig.suptitle("Residual analysis of the final model (as MATLAB's resid)")
+    fig.suptitle("Residual analysis of the final model (as MATLAB's resid)" + "\n" + model, fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "resid.png", dpi=110)
     plt.close(fig)
     files.append("resid.png")
     if d.verdict is not None and d.verdict.corrections:
-        files.append(_location_plot(d.verdict.corrections, out, plt))
+        files.append(_location_plot(d.verdict.corrections, out, plt, model))
     return files
 
 
@@ -257,7 +262,7 @@ _SIGNAL_AXIS = {"u": ("controller output u [MU]", 1.0), "x": ("ball position x [
                 "y": ("reading y [MU]", 1.0), "F": ("force F [N]", 1.0), "i": ("current i [A]", 1.0)}
 
 
-def _location_plot(corrections, out: Path, plt) -> str:
+def _location_plot(corrections, out: Path, plt, model: str = "") -> str:
     """The best generic correction at each location: the spline's curve over its signal, or the
     filter's frequency response; its held-out gain in the title."""
     from .diagnosis.locate import LOCATIONS, best_per_location
@@ -285,7 +290,8 @@ def _location_plot(corrections, out: Path, plt) -> str:
         a.set_title(f"{loc}: {c.form} in {c.signal}, removes {100 * c.held_out_gain:.1f} %\nof the held-out "
                     "residual", fontsize=9)
         a.grid(alpha=0.3)
-    fig.suptitle("Where the residual enters: the best generic correction at each place in the loop")
+    fig.suptitle("Where the residual enters: the best generic correction at each place in the loop"
+                 + ("\n" + model if model else ""), fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "location.png", dpi=110)
     plt.close(fig)
