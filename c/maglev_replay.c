@@ -421,7 +421,7 @@ static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
 static int predict(const double *params, const MaglevController *ctl, double ts, const MaglevFilter *f, const double *w,
                    const double *y, const double *u, const double *i_meas, double r_current, size_t n,
                    double u_hold, double *y_pred, double *u_pred, double *i_pred, double *innov,
-                   double *innov_var, char *msg, size_t len) {
+                   double *innov_var, double *d_est, double *d_sd, char *msg, size_t len) {
     MaglevPlant m;
     if ((ctl && ctl_check(ctl, u_hold, msg, len)) || filter_check(f, msg, len)) return -1;
     if (!ctl && (!(ts > 0) || !isfinite(ts) || !isfinite(u_hold))) {
@@ -442,6 +442,8 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
         if (i_pred) i_pred[k] = NAN;
         if (innov) innov[k] = NAN;
         if (innov_var) innov_var[k] = NAN;
+        if (d_est) d_est[k] = NAN;
+        if (d_sd) d_sd[k] = NAN;
     }
     if (setup(&m, params, u_hold, msg, len)) {
         maglev_release(&m, &maglev_std_allocator);
@@ -451,6 +453,7 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
     const double a = exp(-6.283185307179586 * f->f_force * ts), r2 = f->r_sensor * f->r_sensor;
     const int current_state = maglev_param(&m, VR_T_a) > 0 || maglev_param(&m, VR_R_c) > 0;
     const int sensor_lag = maglev_param(&m, VR_T_y) > 0, ys = sensor_lag ? 5 : 0; /* the state y reads */
+    const int drive_by_current = !ctl && i_meas && current_state && f->current_input;
     const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1, sensor_lag};
     const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg, 1e-7};
     /* process noise besides d's own: tiny, to keep the lags' covariance well conditioned */
@@ -487,6 +490,10 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
         /* measurement update with the measured current (a state of its own only with a lag or a
          * voltage drive; otherwise it is a function of the input and carries nothing new) */
         if (i_meas && active[2]) scalar_update(&m, &d, P, 2, 1.0, i_meas[k] - m.i, r_current * r_current);
+        /* the random force after both updates: its trajectory is how a drift shows (a force the
+         * mechanics lacks, or a gain that changes during the run) */
+        if (d_est) d_est[k] = d;
+        if (d_sd) d_sd[k] = sqrt(P[4][4]);
         /* the controller, on the measured reading (and current, or the filter's): its state for the
          * predictions */
         if (ctl) (void)ctl_step(ctl, &cs, w[k], y[k], i_meas ? i_meas[k] : maglev_get(&m, VR_i));
@@ -501,6 +508,12 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
             }
             for (int j = 1; j <= f->horizon; j++) {
                 cur.time = (double)(k + (size_t)j - 1) * ts;
+                if (drive_by_current && j > 1) {
+                    /* the measured current at the sample's start; the actuator signal still moves
+                     * it within the sample (the coil's own dynamics) */
+                    double imax = maglev_param(&cur, VR_i_max), ic = i_meas[k + (size_t)j - 1];
+                    cur.i = ic < 0 ? 0 : (ic > imax ? imax : ic);
+                }
                 if (advance(&cur, uin, dd, ts, msg, len)) {
                     rc = -1;
                     break;
@@ -589,13 +602,13 @@ int maglev_replay_predict(const double *params, const MaglevController *c, const
         return -1;
     }
     return predict(params, c, c->pid.ts, f, w, y, u, NULL, 0.0, n, u_hold, y_pred, u_pred, NULL, innov, innov_var,
-                   msg, len);
+                   NULL, NULL, msg, len);
 }
 
 int maglev_replay_predict_measured(const double *params, const MaglevFilter *f, double ts, const double *y,
                                    const double *u, const double *i_meas, double r_current, size_t n,
-                                   double *y_pred, double *i_pred, double *innov, double *innov_var, char *msg,
-                                   size_t len) {
+                                   double *y_pred, double *i_pred, double *innov, double *innov_var, double *d_est,
+                                   double *d_sd, char *msg, size_t len) {
     return predict(params, NULL, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, y_pred, NULL, i_pred,
-                   innov, innov_var, msg, len);
+                   innov, innov_var, d_est, d_sd, msg, len);
 }

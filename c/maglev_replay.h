@@ -92,6 +92,9 @@ typedef struct {
     double r_sensor; /* [MU] RMS of the sensor noise (> 0) */
     int horizon;     /* [samples] prediction horizon (>= 1), or 0: filter only */
     int stride;      /* a prediction from every stride-th sample (>= 1) */
+    int current_input; /* measured-input predictions only: 1 drives them by the measured coil current
+                        * (i_meas[k + j] put into the plant at each sample of the horizon, as a
+                        * regression on the measured current would use it), 0 by the actuator signal */
 } MaglevFilter;
 
 /* y_pred[k], u_pred[k]: the predictions of y[k] and u[k] made at k - horizon (NaN where none was
@@ -108,11 +111,13 @@ int maglev_replay_predict(const double *params, const MaglevController *c, const
  * [MU]), never by a controller and never by a free run of the unstable plant. With i_meas (may be
  * NULL) the measured coil current [A], white noise of RMS r_current, corrects the state too (when
  * the current is a state: T_a > 0 or a voltage drive). i_pred[k]: the current predicted at
- * k - horizon. ts: the sample time [s]. Returns 0, or -1 with a message. */
+ * k - horizon. d_est[k], d_sd[k]: the filtered random force on the ball at t_k [N] and its standard
+ * deviation [N] (its trajectory shows a drift). ts: the sample time [s]. Any output may be NULL.
+ * Returns 0, or -1 with a message. */
 int maglev_replay_predict_measured(const double *params, const MaglevFilter *filter, double ts, const double *y,
                                    const double *u, const double *i_meas, double r_current, size_t n,
-                                   double *y_pred, double *i_pred, double *innov, double *innov_var, char *msg,
-                                   size_t msglen);
+                                   double *y_pred, double *i_pred, double *innov, double *innov_var, double *d_est,
+                                   double *d_sd, char *msg, size_t msglen);
 
 /* The plant driven by a given input sequence; y[k] is read at t_k before u_in[k] is applied;
  * u_in[0] is also the input before t = 0. */

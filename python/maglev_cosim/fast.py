@@ -186,10 +186,12 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
     return {"t": np.arange(n) * pid.ts, "w": w, **out}
 
 
-def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int):
+def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int,
+            current_input: bool = False):
     """The C filter settings (``MaglevFilter``, ``c/maglev_replay.h``) of both prediction entry points."""
     return m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
-                                        "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride)})
+                                        "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride),
+                                        "current_input": int(bool(current_input))})
 
 
 def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w: np.ndarray, y: np.ndarray,
@@ -222,12 +224,16 @@ def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w
 
 def predict_measured(params: PlantParams | Mapping[str, float] | None, y: np.ndarray, u: np.ndarray, *, ts: float,
                      q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int = 1,
-                     current: np.ndarray | None = None, r_current: float = 0.0) -> dict[str, np.ndarray]:
+                     current: np.ndarray | None = None, r_current: float = 0.0,
+                     current_input: bool = False) -> dict[str, np.ndarray]:
     """The prediction-error replay of a record whose controller is unknown, in one C call
     (``maglev_replay_predict_measured``): the filter follows the measured reading ``y`` [MU] (and
     the measured coil ``current`` [A], white noise of RMS ``r_current``, when given) and predicts
-    ``horizon`` samples ahead driven by the measured input ``u`` [MU]. Returns ``y_pred`` [MU],
-    ``i_pred`` [A] (NaN where no prediction ends), ``innov`` [MU] and ``innov_var`` [MU²]."""
+    ``horizon`` samples ahead driven by the measured input ``u`` [MU], or with ``current_input`` by
+    the measured ``current`` over the horizon (the actuator signal then only moves it within each
+    sample). Returns ``y_pred`` [MU],
+    ``i_pred`` [A] (NaN where no prediction ends), ``innov`` [MU], ``innov_var`` [MU²], and ``d``, ``d_sd``
+    [N]: the filtered random force on the ball and its standard deviation at every sample."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
     arrays = [np.ascontiguousarray(a, dtype=float) for a in (y, u)]
@@ -235,14 +241,14 @@ def predict_measured(params: PlantParams | Mapping[str, float] | None, y: np.nda
     cur = None if current is None else np.ascontiguousarray(current, dtype=float)
     if len(arrays[1]) != n or (cur is not None and len(cur) != n):
         raise ValueError("y, u and the current must have the same length")
-    out = {k: np.empty(n) for k in ("y_pred", "i_pred", "innov", "innov_var")}
-    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride)
+    out = {k: np.empty(n) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")}
+    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     rc = m.lib.maglev_replay_predict_measured(ptr(pv), filt, float(ts), *(ptr(a) for a in arrays),
                                               m.ffi.NULL if cur is None else ptr(cur), float(r_current), n,
-                                              *(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var")),
-                                              msg, 256)
+                                              *(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var", "d",
+                                                                       "d_sd")), msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return out

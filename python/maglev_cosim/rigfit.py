@@ -123,99 +123,185 @@ def _valid(n: int, h: int, ts: float) -> np.ndarray:
     return k >= h + int(round(SETTLE_S / ts))
 
 
-def figures(rig: Rig, r: RigRecord, params: PlantParams) -> dict:
-    """The fit figures of one segment (module docstring); JSON-ready."""
+#: Blocks [s] over which the filtered random force is averaged to show its drift.
+DRIFT_BLOCK_S = 1.0
+
+
+def drift(r: RigRecord, d: np.ndarray, d_sd: np.ndarray, weight: float) -> dict:
+    """The filtered random force on the ball (``d`` [N], ``d_sd`` its standard deviation) as a
+    drift: its mean over blocks of :data:`DRIFT_BLOCK_S` in % of the ball's ``weight`` [N], with
+    ±2σ (the filter's own standard deviation, which the block mean does not shrink: the force is
+    correlated across the block), and the change from the first to the last block, called a
+    finding when it exceeds the two blocks' combined 2σ."""
+    nb = max(1, int(round(DRIFT_BLOCK_S / r.ts)))
+    skip = int(round(SETTLE_S / r.ts))
+    t, mean, sd = [], [], []
+    for a in range(skip, len(d) - nb // 2, nb):
+        blk = slice(a, min(a + nb, len(d)))
+        if np.all(np.isfinite(d[blk])):
+            t.append(float((a + (blk.stop - a) / 2) * r.ts))
+            mean.append(float(100 * np.mean(d[blk]) / weight))
+            sd.append(float(100 * np.mean(d_sd[blk]) / weight))
+    out: dict = {"t_s": t, "force_pct_weight": mean, "two_sigma_pct_weight": [2 * v for v in sd]}
+    if len(mean) >= 2:
+        change = mean[-1] - mean[0]
+        band = 2 * float(np.hypot(sd[0], sd[-1]))
+        out.update(change_pct_weight=change, change_two_sigma=band, significant=bool(abs(change) > band),
+                   range_pct_weight=[min(mean), max(mean)])
+    return out
+
+
+def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float] | None = None,
+            black_box: dict[float, object] | None = None) -> dict:
+    """The fit figures of one segment (module docstring); JSON-ready. ``black_box``: the fitted
+    direct predictors per horizon (:func:`maglev_cosim.diagnosis.blackbox.fit`), shown beside the
+    model and the naive predictors, all as skill against "stays put" over the same samples."""
+    from .diagnosis import blackbox as bb
+
     out: dict = {"label": r.label, "samples": len(r.y), "duration_s": len(r.y) * r.ts, "position": {}}
     if r.current is not None:
-        o = predict(rig, r, params, r.ts, use_current=False)
+        o = predict(rig, r, params, r.ts, use_current=False, noise=noise)
         ok = _valid(len(r.y), 1, r.ts) & np.isfinite(o["i_pred"])
         cur = {"from_actuator": nrmse_fit(r.current[ok], o["i_pred"][ok])}
     else:
         cur = None
+    series = bb.Series(r.position, r.current if r.current is not None else r.u, r.ts)
     for hs in HORIZONS_S:
-        h = max(1, int(round(hs / r.ts)))
-        o = predict(rig, r, params, hs)
+        h = _lag(r, hs)
+        o = predict(rig, r, params, hs, noise=noise)
         ok = _valid(len(r.y), h + 10, r.ts) & np.isfinite(o["y_pred"])
         y = r.y
-        stay = np.full_like(y, np.nan)
-        stay[h:] = y[:-h]
-        cv = np.full_like(y, np.nan)
-        m = max(1, int(round(0.01 / r.ts)))
-        cv[h + m:] = y[m:-h] + h * (y[m:-h] - y[:-h - m]) / m
-        e_model = np.linalg.norm(y[ok] - o["y_pred"][ok])
-        e_stay = np.linalg.norm(y[ok] - stay[ok])
-        out["position"][f"{hs * 1e3:g} ms"] = {
-            "model": nrmse_fit(y[ok], o["y_pred"][ok]), "stays_put": nrmse_fit(y[ok], stay[ok]),
-            "constant_velocity": nrmse_fit(y[ok], cv[ok]),
-            "skill_vs_stays_put": float(1 - e_model / e_stay) if e_stay > 0 else float("nan")}
+        stay = bb.stays_put(y, h)
+        cv = bb.constant_velocity(y, h, r.ts)
+        entry = {"model": nrmse_fit(y[ok], o["y_pred"][ok]), "stays_put": nrmse_fit(y[ok], stay[ok]),
+                 "constant_velocity": nrmse_fit(y[ok], cv[ok]),
+                 "skill_vs_stays_put": bb.skill(y, o["y_pred"], stay, ok),
+                 "skill": {"model": bb.skill(y, o["y_pred"], stay, ok),
+                           "constant_velocity": bb.skill(y, cv, stay, ok)}}
+        if black_box and hs in black_box:
+            # the black box predicts the record's position: both are compared there too
+            yb = black_box[hs].predict(series)
+            okb = ok & np.isfinite(yb)
+            entry["black_box"] = nrmse_fit(r.position[okb], yb[okb])
+            entry["skill"]["black_box"] = bb.skill(r.position, yb, bb.stays_put(r.position, h), okb)
+            entry["skill"]["model_on_position"] = bb.skill(r.position, _to_position(rig, o["y_pred"]),
+                                                           bb.stays_put(r.position, h), okb)
+        out["position"][f"{hs * 1e3:g} ms"] = entry
         if cur is not None:
             cur[f"{hs * 1e3:g} ms"] = nrmse_fit(r.current[ok], o["i_pred"][ok])
+        if hs == HORIZONS_S[0]:
+            out["drift"] = drift(r, o["d"], o["d_sd"], params.m_k * params.g)
     out["current"] = cur
     return out
 
 
-def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None = None, *,
-              names: Sequence[str] | None = None, horizon_s: float = 0.020, stride: int = 10,
-              progress=None) -> tuple[PlantParams, dict]:
-    """One parameter set for several segments: least squares (scipy, trust-region reflective) on
-    the ``horizon_s`` prediction errors of the reading and the current, each scaled by its noise
-    level, over factors on the rig's values of ``names`` (default :data:`CALIBRATED`), bounded to
-    [0.5, 2] (offsets: ±1 V).
+def _to_position(rig: Rig, y_pred: np.ndarray) -> np.ndarray:
+    """Predicted readings [MU] as record positions [m] (the rig's sensor inverse; NaN stays NaN)."""
+    out = np.full(len(y_pred), np.nan)
+    ok = np.isfinite(y_pred)
+    out[ok] = rig.position_for_reading(y_pred[ok])
+    return out
 
-    Returns the calibrated parameters and a summary (factors, cost before and after, evaluations)."""
+
+#: The filter's disturbance model, calibrated with the plant (log-factors on :func:`noise_defaults`):
+#: the random force's RMS and corner (a low corner is a slowly drifting force: a gain that changes
+#: during the run, or a force the mechanics lacks) and the sensor noise.
+NOISE = ("q_force", "f_force", "r_sensor")
+#: Horizons [s] whose prediction errors :func:`calibrate` minimises (the long one is where an
+#: unstable plant's model errors show; the short one keeps the fast dynamics).
+CAL_HORIZONS_S = (0.020, 0.050)
+
+
+def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None = None, *,
+              names: Sequence[str] | None = None, noise: dict[str, float] | None = None,
+              horizons_s: Sequence[float] = CAL_HORIZONS_S, stride: int = 20, max_evaluations: int = 60,
+              fit_noise: bool = True, progress=None) -> tuple[PlantParams, dict]:
+    """One parameter set for several segments, by the prediction-error method: least squares
+    (scipy, trust-region reflective) on the prediction errors ``horizons_s`` ahead of the gap (each
+    scaled by the error of "stays put" at that horizon, so every horizon counts alike) and of the
+    coil current (scaled by its spread), over factors on the rig's values of ``names`` (default
+    :data:`CALIBRATED`) bounded to [0.5, 2] (offsets: ±1 V; an effect parameter at 0 is searched
+    on [0, its catalogue bound]) and log-factors of ±4 on the filter's disturbance model
+    (:data:`NOISE`, starting from ``noise`` or :func:`noise_defaults`; held with ``fit_noise=False``).
+
+    Returns the calibrated parameters and a summary: ``values``, ``rig_values``, ``noise`` (the
+    calibrated disturbance model), costs before and after, evaluations, ``on_bounds``."""
     from scipy.optimize import least_squares
 
     p0 = params or rig.params
     names = tuple(names or CALIBRATED[rig.drive])
-    nz = noise_defaults(rig, p0)
+    nz0 = dict(noise or noise_defaults(rig, p0))
     base = np.array([getattr(p0, n) for n in names])
     additive = np.array([n in ("u_0", "x_0") for n in names])
-    lo = np.where(additive, -1.0, 0.5)
-    hi = np.where(additive, 1.0, 2.0)
-    z0 = np.where(additive, 0.0, 1.0)
+    effect_bound = {e[1]: e[4][1] for e in RIG_EFFECTS}
+    absolute = np.array([b == 0 and n in effect_bound for n, b in zip(names, base)])
+    free = NOISE if fit_noise else ()
+    lo = np.concatenate([np.where(additive, -1.0, np.where(absolute, 0.0, 0.5)), np.full(len(free), -4.0)])
+    hi = np.concatenate([np.where(additive, 1.0, np.where(absolute, [effect_bound.get(n, 1.0) for n in names], 2.0)),
+                         np.full(len(free), 4.0)])
+    z0 = np.concatenate([np.where(additive | absolute, 0.0, 1.0), np.zeros(len(free))])
+    scale = np.concatenate([np.where(absolute, 0.1 * hi[: len(names)], 0.1), np.ones(len(free))])
     evals = [0]
 
-    def make(z: np.ndarray) -> PlantParams:
-        vals = np.where(additive, base + z * np.where([n == "x_0" for n in names], 1e-3, 1.0), base * z)
-        return p0.replace(**dict(zip(names, vals)))
+    def make(z: np.ndarray) -> tuple[PlantParams, dict[str, float]]:
+        zp = z[: len(names)]
+        vals = np.where(additive, base + zp * np.where([n == "x_0" for n in names], 1e-3, 1.0),
+                        np.where(absolute, zp, base * zp))
+        nz = dict(nz0)
+        nz.update({k: nz0[k] * float(np.exp(v)) for k, v in zip(free, z[len(names):])})
+        return p0.replace(**dict(zip(names, vals))), nz
+
+    # the naive predictor's error per record and horizon: the scale of the gap's errors
+    naive = {(id(r), hs): max(float(np.sqrt(np.mean((r.y[_lag(r, hs):] - r.y[: -_lag(r, hs)]) ** 2))), 1e-9)
+             for r in records for hs in horizons_s}
+    size = sum(len(r.y) // stride + 1 for r in records) * (len(horizons_s) + 1)
 
     def resid(z: np.ndarray) -> np.ndarray:
         evals[0] += 1
         try:
-            p = make(z)
+            p, nz = make(z)
             p.validate()
         except ValueError:
-            return np.full(sum(len(r.y) // stride * 2 for r in records), 1e3)
+            return np.full(size, 1e3)
         parts = []
-        h = max(1, int(round(horizon_s / records[0].ts)))
         for r in records:
-            o = predict(rig, r, p, horizon_s, stride=stride, noise=nz)
-            ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"])
-            ey = np.zeros(len(r.y) // stride + 1)
-            sel = np.flatnonzero(ok)[: len(ey)]
-            scale_y = max(float(np.std(r.y[ok])), 1e-9)
-            e = (r.y[sel] - o["y_pred"][sel]) / scale_y
-            ey[: len(e)] = np.nan_to_num(e, nan=10.0, posinf=10.0, neginf=-10.0)
-            parts.append(ey / np.sqrt(len(records)))
-            if r.current is not None:
-                scale_i = max(float(np.std(r.current[ok])), 1e-9)
-                ei = np.zeros_like(ey)
-                e = (r.current[sel] - o["i_pred"][sel]) / scale_i
-                ei[: len(e)] = np.nan_to_num(e, nan=10.0, posinf=10.0, neginf=-10.0)
-                parts.append(ei / np.sqrt(len(records)))
+            for j, hs in enumerate(horizons_s):
+                h = _lag(r, hs)
+                try:
+                    o = predict(rig, r, p, hs, stride=stride, noise=nz)
+                except ValueError:
+                    return np.full(size, 1e3)
+                ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"])
+                sel = np.flatnonzero(ok)[: len(r.y) // stride + 1]
+                ey = np.zeros(len(r.y) // stride + 1)
+                e = (r.y[sel] - o["y_pred"][sel]) / naive[(id(r), hs)]
+                ey[: len(e)] = np.nan_to_num(e, nan=10.0, posinf=10.0, neginf=-10.0) / np.sqrt(max(len(e), 1))
+                parts.append(ey)
+                if j == 0:  # the current, once, at the first horizon
+                    ei = np.zeros_like(ey)
+                    if r.current is not None:
+                        e = (r.current[sel] - o["i_pred"][sel]) / max(float(np.std(r.current[ok])), 1e-9)
+                        ei[: len(e)] = np.nan_to_num(e, nan=10.0, posinf=10.0, neginf=-10.0) / np.sqrt(max(len(e), 1))
+                    parts.append(ei)
         if progress:
             progress(evals[0])
-        return np.concatenate(parts)
+        return np.concatenate(parts) / np.sqrt(len(records))
 
     r0 = resid(z0)
-    sol = least_squares(resid, z0, bounds=(lo, hi), x_scale=np.where(additive, 0.1, 0.1), diff_step=1e-3,
-                        max_nfev=40)
-    p = make(sol.x)
-    on_bound = [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]
+    sol = least_squares(resid, z0, bounds=(lo, hi), x_scale=scale, diff_step=1e-3, max_nfev=max_evaluations)
+    p, nz = make(sol.x)
+    at_bound = [n for n, z, a, b in zip((*names, *free), sol.x, lo, hi)
+                if min(z - a, b - z) < 1e-3 * (b - a) and not (n in names and absolute[names.index(n)] and z - a < 1e-9)]
+    on_bound = [n for n in at_bound if n in names]
     return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
-               "rig_values": {n: float(v) for n, v in zip(names, base)},
+               "rig_values": {n: float(v) for n, v in zip(names, base)}, "noise": nz,
+               "horizons_s": list(horizons_s),
                "cost_before": float(0.5 * r0 @ r0), "cost_after": float(sol.cost), "evaluations": evals[0],
-               "on_bounds": on_bound}
+               "on_bounds": on_bound, "noise_on_bounds": [n for n in at_bound if n in NOISE]}
+
+
+def _lag(r: RigRecord, horizon_s: float) -> int:
+    return max(1, int(round(horizon_s / r.ts)))
 
 
 # ----------------------------------------------------------------------------- effects on real records
@@ -235,7 +321,8 @@ MIN_EFFECT_GAIN = 0.10
 
 
 def prediction_cost(rig: Rig, records: Sequence[RigRecord], params: PlantParams, *, horizon_s: float = 0.020,
-                    stride: int = 10, parity: int | None = None) -> dict[str, float]:
+                    stride: int = 10, parity: int | None = None,
+                    noise: dict[str, float] | None = None) -> dict[str, float]:
     """Mean squares of the ``horizon_s`` prediction errors of the reading (``"y"``) and of the
     current (``"i"``, where measured), each scaled by its record's spread (as :func:`calibrate`
     weighs them), and their mean (``"total"``), over the predictions that end in the even
@@ -243,7 +330,7 @@ def prediction_cost(rig: Rig, records: Sequence[RigRecord], params: PlantParams,
     sums = {"y": [0.0, 0], "i": [0.0, 0]}
     for r in records:
         h = max(1, int(round(horizon_s / r.ts)))
-        o = predict(rig, r, params, horizon_s, stride=stride)
+        o = predict(rig, r, params, horizon_s, stride=stride, noise=noise)
         k = np.arange(len(r.y))
         ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"])
         if parity is not None:
@@ -263,7 +350,7 @@ def prediction_cost(rig: Rig, records: Sequence[RigRecord], params: PlantParams,
 
 
 def _fit_one(rig: Rig, records: Sequence[RigRecord], params: PlantParams, name: str, grid, bounds,
-             parity: int | None) -> tuple[float, float]:
+             parity: int | None, noise: dict[str, float] | None = None) -> tuple[float, float]:
     """The value of one effect parameter that minimises the prediction cost (grid, then a bounded
     scalar search around the best grid point), with the other parameters held: (value, cost)."""
     from scipy.optimize import minimize_scalar
@@ -274,7 +361,7 @@ def _fit_one(rig: Rig, records: Sequence[RigRecord], params: PlantParams, name: 
             p.validate()
         except ValueError:
             return float("inf")
-        return prediction_cost(rig, records, p, parity=parity)["total"]
+        return prediction_cost(rig, records, p, parity=parity, noise=noise)["total"]
 
     grid = [g for g in grid if bounds[0] <= g <= bounds[1]]
     costs = [cost(g) for g in grid]
@@ -287,7 +374,7 @@ def _fit_one(rig: Rig, records: Sequence[RigRecord], params: PlantParams, name: 
 
 
 def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, say=lambda s: None, *,
-                  max_effects: int = 2) -> dict:
+                  max_effects: int = 2, noise: dict[str, float] | None = None) -> dict:
     """The catalogue's effects (:data:`RIG_EFFECTS`) tried on the calibrated model of a real rig,
     in greedy rounds: each effect not yet selected is fitted on the even held-out blocks and judged
     on the odd ones by the 20 ms prediction cost of the gap and of the current, each on its own (a
@@ -296,19 +383,20 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
     without raising the other's by more than 1 % is selected, refitted on every block, and kept for
     the next round; at most ``max_effects``. JSON-ready: ``candidates`` (round, effect, parameter,
     value, location, held-out gain per signal), ``selected``, ``parameters`` (the selected effects'
-    values) and ``held_out_cost`` of the model without an effect."""
-    out: dict = {"held_out_cost": prediction_cost(rig, records, params, parity=1), "block_s": EFFECT_BLOCK_S,
+    values) and ``held_out_cost`` of the model without an effect. ``noise``: the filter's
+    disturbance model (default :func:`noise_defaults`)."""
+    out: dict = {"held_out_cost": prediction_cost(rig, records, params, parity=1, noise=noise), "block_s": EFFECT_BLOCK_S,
                  "min_gain": MIN_EFFECT_GAIN, "candidates": [], "selected": [], "parameters": {}}
     current = params
     for rnd in range(1, max_effects + 1):
-        base = prediction_cost(rig, records, current, parity=1)
+        base = prediction_cost(rig, records, current, parity=1, noise=noise)
         tried = []
         for name, param, location, grid, bounds in RIG_EFFECTS:
             if name in out["selected"]:
                 continue
             say(f"round {rnd}: trying {name} ({param}) on the held-out blocks")
-            v, _ = _fit_one(rig, records, current, param, grid, bounds, parity=0)
-            held = prediction_cost(rig, records, current.replace(**{param: v}), parity=1)
+            v, _ = _fit_one(rig, records, current, param, grid, bounds, parity=0, noise=noise)
+            held = prediction_cost(rig, records, current.replace(**{param: v}), parity=1, noise=noise)
             gains = {k: float(1 - held[k] / base[k]) for k in base if np.isfinite(base[k]) and base[k] > 0}
             worst = min(gains.values())
             gain = max(gains.get("y", -np.inf), gains.get("i", -np.inf)) if worst > -0.01 else worst
@@ -319,7 +407,7 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
         if not best or best["held_out_gain"] < MIN_EFFECT_GAIN:
             break
         spec = next(e for e in RIG_EFFECTS if e[0] == best["effect"])
-        v, _ = _fit_one(rig, records, current, spec[1], spec[3], spec[4], parity=None)
+        v, _ = _fit_one(rig, records, current, spec[1], spec[3], spec[4], parity=None, noise=noise)
         current = current.replace(**{spec[1]: v})
         out["selected"].append(best["effect"])
         out["parameters"][spec[1]] = v
@@ -411,6 +499,45 @@ def conclude(rig: Rig, figs: list[dict], info: list[list[str]], cal: dict | None
                        f"{MIN_SKILL:g} needed): what the model lacks acts on the force or the mechanics")
         return "unexplained: mechanics", reasons
     return "explained", [f"current fit {np.median(cur):.1f} %, skill at 20 ms {np.median(skill):+.2f}"]
+
+
+def comparison(calibration: Sequence[dict], validation: Sequence[dict]) -> dict:
+    """Median skill against "stays put" of the model, the black-box baseline and "constant
+    velocity", per horizon, over the calibration and the validation segments (:func:`figures`)."""
+    out = {}
+    for role, figs in (("calibration", calibration), ("validation", validation)):
+        if not figs:
+            continue
+        out[role] = {"segments": len(figs)}
+        for h in figs[0]["position"]:
+            row = {}
+            for who in ("model", "black_box", "constant_velocity"):
+                v = [f["position"][h]["skill"].get(who, np.nan) for f in figs]
+                v = [x for x in v if np.isfinite(x)]
+                row[who] = float(np.median(v)) if v else float("nan")
+                row[f"{who}_worst"] = float(min(v)) if v else float("nan")
+            out[role][h] = row
+    return out
+
+
+def judge_against_black_box(verdict: str, comp: dict) -> tuple[str, list[str]]:
+    """A model that predicts the gap worse than the black-box baseline (median skill, on the
+    validation segments when there are any, else the calibration ones) at some horizon does not
+    explain the record: ``explained`` becomes ``explained in part``, and the reasons say where."""
+    role = "validation" if "validation" in comp else "calibration"
+    figs = comp.get(role)
+    if not figs:
+        return verdict, []
+    lost = [(h, v) for h, v in figs.items() if h != "segments" and np.isfinite(v["black_box"])
+            and not v["model"] > v["black_box"]]
+    if not lost:
+        return verdict, [f"the model beats the black-box baseline at every horizon on the {role} segments"]
+    why = ", ".join(f"{h}: model {v['model']:+.2f} against black box {v['black_box']:+.2f}" for h, v in lost)
+    reasons = [f"the model predicts the gap worse than the black-box baseline fitted on the same calibration "
+               f"segments at {', '.join(h for h, _ in lost)} (median skill over {figs['segments']} {role} "
+               f"segment(s): {why}): what it lacks acts on the gap's dynamics (the force or the mechanics), "
+               "and the black box, a direct linear predictor, captures it without running the unstable plant"]
+    return ("explained in part" if verdict in ("explained", "no effect") else verdict), reasons
 
 
 #: A rig's force law that carries less or more of the ball's weight than this (median over the
@@ -543,15 +670,39 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
     params = rig.params
     info = [information(rig, r) for r in segs]
     lacking = {id(r): why for r, why in zip(segs, info)}
-    if segs and not all(info):
-        say(f"calibrating {', '.join(CALIBRATED[rig.drive])} on {len(segs)} segment(s)")
-        params, cal = calibrate(rig, [r for r, why in zip(segs, info) if not why])
+    noise = noise_defaults(rig, params)
+    fit_on = [r for r, why in zip(segs, info) if not why]
+    if fit_on:
+        say(f"calibrating {', '.join(CALIBRATED[rig.drive])} and the disturbance model on {len(fit_on)} segment(s)")
+        params, cal = calibrate(rig, fit_on)
+        noise = cal["noise"]
         say(f"calibrated in {cal['evaluations']} evaluations: cost {cal['cost_before']:.4g} -> {cal['cost_after']:.4g}")
-    result["calibration"] = cal
     if cal is not None and effects:
-        fit_on = [r for r, why in zip(segs, info) if not why]
-        result["effects"] = effect_search(rig, fit_on, params, say)
+        result["effects"] = effect_search(rig, fit_on, params, say, noise=noise)
+        chosen = list(result["effects"]["parameters"])
         params = params.replace(**result["effects"]["parameters"])
+        if chosen:
+            # the selected effects refitted together with the plant and the disturbance model: an
+            # effect chosen with the others held may have taken the place of a parameter's error
+            say(f"refitting {', '.join(CALIBRATED[rig.drive] + tuple(chosen))} and the disturbance model together")
+            params, cal = calibrate(rig, fit_on, params, names=CALIBRATED[rig.drive] + tuple(chosen), noise=noise)
+            noise = cal["noise"]
+            result["effects"]["parameters"] = {n: cal["values"][n] for n in chosen}
+    result["calibration"] = cal
+    result["disturbance_model"] = noise
+    black_box = {}
+    if fit_on:
+        from .diagnosis import blackbox as bb
+
+        say(f"fitting the black-box baseline (direct ridge predictors at {', '.join(f'{h * 1e3:g}' for h in HORIZONS_S)}"
+            " ms) on the same segments")
+        series = [bb.Series(r.position, r.current if r.current is not None else r.u, r.ts) for r in fit_on]
+        try:
+            black_box = {hs: bb.fit(series, hs) for hs in HORIZONS_S}
+        except ValueError as e:
+            result["black_box_error"] = str(e)
+        result["black_box"] = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
+                                                    "features": len(p.coef)} for hs, p in black_box.items()}
     figs_after = []
     for m, rs in train:
         entry = {"file": str(m.path), "label": m.label, "warnings": m.warnings, "segments": [],
@@ -562,10 +713,10 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
             entry["closed_loop"] = [closed_loop_figures(rig, r, m, params, controller.controller) for r in rs]
         for r in rs:
             say(f"figures of {r.label}")
-            before, after = figures(rig, r, rig.params), figures(rig, r, params)
+            before, after = figures(rig, r, rig.params), figures(rig, r, params, noise, black_box)
             seg = {"label": r.label, "before": before, "after": after}
             if per_record and cal and len(segs) > 1 and not lacking[id(r)]:
-                own, own_info = calibrate(rig, [r])
+                own, own_info = calibrate(rig, [r], noise=noise, fit_noise=False)
                 seg["own_calibration"] = own_info["values"]
             frf = current_to_position(rig, r, params)
             seg["frequency_response"] = frf.get("summary")
@@ -577,9 +728,21 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
         for r in rs:
             say(f"validation figures of {r.label}")
             result["validation"].append({"file": str(m.path), "label": r.label, "before": figures(rig, r, rig.params),
-                                         "after": figures(rig, r, params), "warnings": m.warnings,
+                                         "after": figures(rig, r, params, noise, black_box), "warnings": m.warnings,
                                          "force_balance_calibrated": fb})
     verdict, reasons = conclude(rig, figs_after, info, cal)
+    result["comparison"] = comparison(figs_after, [v["after"] for v in result["validation"]])
+    verdict, more = judge_against_black_box(verdict, result["comparison"])
+    reasons += more
+    if verdict == "explained" and not result.get("effects", {}).get("selected"):
+        verdict = "no effect"   # the CE152 diagnosis's word: the calibrated model alone explains the record
+    for f in figs_after + [v["after"] for v in result["validation"]]:
+        dr = f.get("drift", {})
+        if dr.get("significant"):
+            reasons.append(f"{f['label']}: the random force the filter estimates drifts by "
+                           f"{dr['change_pct_weight']:+.1f} % of the weight over the segment "
+                           f"(±{dr['change_two_sigma']:.1f} % at 2σ; block means {dr['range_pct_weight'][0]:+.1f} to "
+                           f"{dr['range_pct_weight'][1]:+.1f} %): a force or a gain that changes during the run")
     held_skill = [v["after"]["position"]["20 ms"]["skill_vs_stays_put"] for v in result["validation"]]
     held_skill = [k for k in held_skill if np.isfinite(k)]
     if held_skill and np.median(held_skill) < MIN_SKILL:
@@ -607,15 +770,15 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
     ef = result.get("effects")
     if ef:
         last = max(c["round"] for c in ef["candidates"])
-        tried = ", ".join(f"{c['effect']} ({c['parameter']} = {c['value']:.4g}) {100 * c['held_out_gain']:+.1f} %"
+        tried = ", ".join(f"{c['effect']} ({c['parameter']} = {c['value']:.4g}) {-100 * c['held_out_gain']:+.1f} %"
                           for c in ef["candidates"] if c["round"] == last)
         if ef["selected"]:
             reasons.append(f"effects found: {', '.join(ef['selected'])} ("
                            + ", ".join(f"{k} = {v:.4g}" for k, v in ef["parameters"].items()) + ")")
         if last > len(ef["selected"]):   # the last round selected nothing
             reasons.append(("none of the remaining effects" if ef["selected"] else "no effect of the catalogue")
-                           + f" explains enough on the held-out blocks: gains of the 20 ms prediction cost "
-                           f"{tried} (at least {100 * MIN_EFFECT_GAIN:.0f} % needed)")
+                           + f" explains enough on the held-out blocks: changes of the 20 ms prediction cost "
+                           f"{tried} (at most −{100 * MIN_EFFECT_GAIN:.0f} % needed)")
     for e in result["records"]:
         fb = e["force_balance"]
         if fb and not fb["consistent"]:
@@ -660,7 +823,8 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
     result["parameters"] = {**{n: float(getattr(params, n)) for n in CALIBRATED[rig.drive]},
                             **result.get("effects", {}).get("parameters", {})}
     out.mkdir(parents=True, exist_ok=True)
-    plots = _plots(rig, segs[:1], params, out) if segs else []
+    plots = (_plots(rig, segs[:1], params, out, noise, black_box,
+                    [*figs_after, *(v["after"] for v in result["validation"])]) if segs else [])
     (out / json_name).write_text(json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
     (out / "report.md").write_text(_markdown(result, plots))
     result["written"] = [str(out / json_name), str(out / "report.md"), *map(str, plots)]
@@ -685,24 +849,52 @@ def _row(label: str, f: dict) -> str:
     cells = [label, f"{cur.get('from_actuator', float('nan')):.1f}"]
     for h in ("5 ms", "20 ms", "50 ms"):
         p = f["position"][h]
-        cells.append(f"{p['model']:.1f} / {p['stays_put']:.1f} / {p['constant_velocity']:.1f} ({p['skill_vs_stays_put']:+.2f})")
+        bb = p["skill"].get("black_box")
+        cells.append(f"{p['model']:.1f} / {p['stays_put']:.1f} / {p['constant_velocity']:.1f} "
+                     f"({p['skill_vs_stays_put']:+.2f}" + (f"; black box {bb:+.2f})" if bb is not None else ")"))
     cells.append(f"{cur.get('20 ms', float('nan')):.1f}")
     return "| " + " | ".join(cells) + " |"
 
 
 def _markdown(res: dict, plots: list[Path]) -> str:
-    head = ("| segment | current from actuator, fit % | gap 5 ms: model / stays put / const. velocity (skill) "
+    head = ("| segment | current from actuator, fit % | gap 5 ms: model / stays put / const. velocity (skill; black box's) "
             "| 20 ms | 50 ms | current 20 ms ahead, fit % |\n|---|---|---|---|---|---|")
     lines = [f"# Rig {res['rig']}: measured records", "", f"**Verdict: {res['verdict']}**", ""]
     lines += [f"- {r}" for r in res["reasons"]]
     lines += ["", "Fits are NRMSE fit % (MATLAB `compare`); the gap is predicted by the prediction-error replay "
               "driven by the measured actuator signal (the controller is not replayed); skill = 1 − ‖error of "
               "the model‖/‖error of 'stays put'‖ (> 0: the model beats the naive predictor).", ""]
+    comp = res.get("comparison", {})
+    if any("black_box" in v for c in comp.values() for v in c.values() if isinstance(v, dict)):
+        lines += ["## The model against the black-box baseline", "",
+                  "Median skill against 'stays put' (worst in brackets) of the gap predicted ahead: the model (the "
+                  "physics with its effects and its disturbance model), the black-box baseline (one ridge regression "
+                  "per horizon on the last 30 ms of gap differences and the measured current and its square up to "
+                  "the predicted instant, fitted by the tool on the same calibration segments) and 'constant "
+                  "velocity'. Higher is better; > 0 beats 'stays put'.", "",
+                  "| segments | horizon | model | black box | constant velocity |", "|---|---|---|---|---|"]
+        for role, c in comp.items():
+            for h, v in c.items():
+                if h == "segments":
+                    continue
+                lines.append(f"| {role} ({c['segments']}) | {h} | " + " | ".join(
+                    f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in ("model", "black_box", "constant_velocity")) + " |")
+        lines.append("")
     cal = res.get("calibration")
     if cal:
-        lines += ["## Calibration", "", "| parameter | rig file | calibrated |", "|---|---|---|"]
-        lines += [f"| {n} | {cal['rig_values'][n]:.6g} | {cal['values'][n]:.6g} |" for n in cal["names"]]
-        lines += ["", f"Cost {cal['cost_before']:.4g} → {cal['cost_after']:.4g} in {cal['evaluations']} evaluations."]
+        from .fast import param_table
+
+        units = {n: u for n, (_, _, _, u) in param_table().items()}
+        lines += ["## Calibration", "", "| parameter | unit | rig file | calibrated |", "|---|---|---|---|"]
+        lines += [f"| {n} | {units.get(n, '')} | {cal['rig_values'][n]:.6g} | {cal['values'][n]:.6g} |"
+                  for n in cal["names"]]
+        nz = cal.get("noise", {})
+        if nz:
+            lines += ["", "The filter's disturbance model, calibrated with the plant: random force on the ball "
+                      f"{nz['q_force'] * 1e3:.3g} mN RMS with a {nz['f_force']:.3g} Hz corner, sensor noise "
+                      f"{nz['r_sensor']:.3g} MU RMS, current noise {nz['r_current'] * 1e3:.3g} mA RMS."]
+        lines += ["", f"Cost {cal['cost_before']:.4g} → {cal['cost_after']:.4g} in {cal['evaluations']} evaluations "
+                  f"(prediction errors {', '.join(f'{h * 1e3:g}' for h in cal.get('horizons_s', []))} ms ahead)."]
         if res.get("spread"):
             lines += ["", "Each record calibrated on its own (the spread between records):", "",
                       "| parameter | min | max | spread (max − min)/mean |", "|---|---|---|---|"]
@@ -712,12 +904,12 @@ def _markdown(res: dict, plots: list[Path]) -> str:
     ef = res.get("effects")
     if ef:
         lines += ["## Effects of the catalogue on the calibrated model", "",
-                  f"Each fitted on the even {ef['block_s']:g} s blocks, judged on the odd ones: the reduction of the "
-                  f"20 ms prediction cost (at least {100 * ef['min_gain']:.0f} % to be selected).", "",
-                  "| round | effect | acts on | parameter | fitted value | held-out gain: gap / current |",
+                  f"Each fitted on the even {ef['block_s']:g} s blocks, judged on the odd ones: the change of the "
+                  f"20 ms prediction cost (negative is better; at most −{100 * ef['min_gain']:.0f} % to be selected).",
+                  "", "| round | effect | acts on | parameter | fitted value | held-out cost change: gap / current |",
                   "|---|---|---|---|---|---|"]
         lines += [f"| {c['round']} | {c['effect']} | {c['location']} | {c['parameter']} | {c['value']:.4g} | "
-                  + " / ".join(f"{100 * c['held_out_gains'][k]:+.1f} %" if k in c["held_out_gains"] else "-"
+                  + " / ".join(f"{-100 * c['held_out_gains'][k]:+.1f} %" if k in c["held_out_gains"] else "-"
                                for k in ("y", "i")) + " |" for c in ef["candidates"]]
         lines += ["", f"Selected: {', '.join(ef['selected']) or 'none'}.", ""]
     for title, key in (("Before calibration (the rig file's values)", "before"), ("After calibration", "after")):
@@ -762,53 +954,121 @@ def _markdown(res: dict, plots: list[Path]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path) -> list[Path]:
+#: Coherence below which the measured frequency response is drawn faded (not a measurement).
+MIN_COHERENCE = 0.3
+#: Width of each window of the prediction plot [s].
+WINDOW_S = 0.8
+
+
+def event_windows(r: RigRecord, y_pred: np.ndarray, h: int) -> list[tuple[str, int, int]]:
+    """Two windows of the segment worth looking at: around its largest move of the position over
+    ``h`` samples (a step of the reference, usually) and around the model's largest error ``h``
+    ahead; (title, first sample, end sample)."""
+    n = len(r.y)
+    w = min(n, int(round(WINDOW_S / r.ts)))
+    skip = min(n - w, int(round(SETTLE_S / r.ts)))
+    move = np.zeros(n)
+    move[h:] = np.abs(r.position[h:] - r.position[:-h])
+    move[:skip] = 0
+    err = np.abs(r.y - y_pred)
+    err[~np.isfinite(err)] = 0
+    err[:skip] = 0
+    out = []
+    for title, k in (("largest move", int(np.argmax(move))), ("largest model error", int(np.argmax(err)))):
+        a = int(np.clip(k - w // 3, 0, n - w))
+        out.append((f"{title} (t = {k * r.ts:.2f} s)", a, a + w))
+    return out
+
+
+def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, noise: dict[str, float] | None = None,
+           black_box: dict | None = None, figs: Sequence[dict] = ()) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .diagnosis import blackbox as bb
+
     r = segs[0]
     written = []
-    o = predict(rig, r, params, 0.020)
-    oc = predict(rig, r, params, r.ts, use_current=False)
-    n = len(r.y)
-    k0 = min(n - 1, int(round(2.0 / r.ts)))
-    k1 = min(n, k0 + int(round(3.0 / r.ts)))
-    t = np.arange(n) * r.ts
-    fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    ax[0].plot(t[k0:k1], 1e3 * r.position[k0:k1], "k", lw=1, label="measured")
-    ax[0].plot(t[k0:k1], 1e3 * rig.position_for_reading(o["y_pred"][k0:k1]), "C1", lw=1, label="model, 20 ms ahead")
-    ax[0].set_ylabel(f"position ({rig.convention}) [mm]")
-    ax[0].legend(loc="best")
-    if r.current is not None:
-        ax[1].plot(t[k0:k1], r.current[k0:k1], "k", lw=1, label="measured")
-        ax[1].plot(t[k0:k1], oc["i_pred"][k0:k1], "C0", lw=1, label="model from the actuator signal")
-        ax[1].legend(loc="best")
-    ax[1].set_ylabel("coil current [A]")
-    ax[1].set_xlabel("time in segment [s]")
-    fig.suptitle(r.label)
-    fig.tight_layout()
+    hs = 0.020
+    h = _lag(r, hs)
+    o = predict(rig, r, params, hs, noise=noise)
+    oc = predict(rig, r, params, r.ts, use_current=False, noise=noise)
+    yb = (black_box[hs].predict(bb.Series(r.position, r.current if r.current is not None else r.u, r.ts))
+          if black_box and hs in black_box else None)
+    t = np.arange(len(r.y)) * r.ts
+    wins = event_windows(r, o["y_pred"], h)
+    fig, ax = plt.subplots(2, len(wins), figsize=(11, 6.5), sharex="col", squeeze=False)
+    for j, (title, k0, k1) in enumerate(wins):
+        sl = slice(k0, k1)
+        a = ax[0, j]
+        a.plot(t[sl], 1e3 * r.position[sl], "k", lw=1.2, label="measured")
+        a.plot(t[sl], 1e3 * _to_position(rig, o["y_pred"][sl]), "C1", lw=1, label=f"model, {hs * 1e3:g} ms ahead")
+        if yb is not None:
+            a.plot(t[sl], 1e3 * yb[sl], "C2", lw=1, ls="--", label=f"black box, {hs * 1e3:g} ms ahead")
+        a.plot(t[sl], 1e3 * bb.stays_put(r.position, h)[sl], "0.6", lw=1, ls=":", label="stays put")
+        a.set_title(title, fontsize=10)
+        a.set_ylabel(f"position ({rig.convention}) [mm]")
+        if r.current is not None:
+            ax[1, j].plot(t[sl], r.current[sl], "k", lw=1, label="measured current")
+            ax[1, j].plot(t[sl], oc["i_pred"][sl], "C0", lw=1, label="model from the actuator signal")
+        ax[1, j].set_ylabel("coil current [A]")
+        ax[1, j].set_xlabel("time in segment [s]")
+    handles = [hd for a in (ax[0, 0], ax[1, 0]) for hd in a.get_legend_handles_labels()[0]]
+    labels = [lb for a in (ax[0, 0], ax[1, 0]) for lb in a.get_legend_handles_labels()[1]]
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=9, frameon=False)
+    fig.suptitle(f"{r.label}: the gap {hs * 1e3:g} ms ahead and the current (parameters: calibrated)")
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
     p = out / "prediction.png"
     fig.savefig(p, dpi=110)
     plt.close(fig)
     written.append(p)
+    drifts = [(f["label"], f["drift"]) for f in figs if f.get("drift", {}).get("t_s")]
+    if drifts:
+        fig, a = plt.subplots(figsize=(9, 4.5))
+        for j, (label, d) in enumerate(drifts):
+            tt, m, s2 = (np.asarray(d[k]) for k in ("t_s", "force_pct_weight", "two_sigma_pct_weight"))
+            a.plot(tt, m, color=f"C{j % 10}", lw=1.2, label=label)
+            a.fill_between(tt, m - s2, m + s2, color=f"C{j % 10}", alpha=0.15)
+        a.axhline(0, color="0.5", lw=0.8)
+        a.set_xlabel("time in segment [s]")
+        a.set_ylabel("random force on the ball [% of weight]")
+        a.set_title(f"the force the filter estimates, {DRIFT_BLOCK_S:g} s means with ±2σ (positive: downward on the gap)",
+                    fontsize=10)
+        a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        fig.tight_layout()
+        p = out / "drift.png"
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        written.append(p)
     frf = current_to_position(rig, r, params)
     if frf:
         f = frf["f_Hz"]
         band = (f > 0.3) & (f < 60)
+        good = band & (frf["coherence"] >= MIN_COHERENCE)
         fig, ax = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
-        ax[0].loglog(f[band], np.abs(frf["measured"][band]), "k", label="measured (Welch)")
-        ax[0].loglog(f[band], np.abs(frf["model"][band]), "C1", label="model, linearised")
+        meas_gain = np.abs(frf["measured"])
+        meas_phase = np.degrees(np.angle(frf["measured"]))
+        for a, mv, model in ((ax[0], meas_gain, np.abs(frf["model"])),
+                             (ax[1], meas_phase, np.degrees(np.angle(frf["model"])))):
+            a.plot(f[band], np.where(good[band], np.nan, mv[band]), color="0.75", lw=1,
+                   label=f"measured, coherence < {MIN_COHERENCE:g} (not a measurement)")
+            a.plot(f[band], np.where(good[band], mv[band], np.nan), "k", lw=1.2, label="measured (Welch)")
+            a.plot(f[band], model[band], "C1", label="model, linearised")
+        ax[0].set_xscale("log")
+        ax[0].set_yscale("log")
         ax[0].set_ylabel("|gap/current| [m/A]")
-        ax[0].legend()
-        ax[1].semilogx(f[band], np.degrees(np.angle(frf["measured"][band])), "k")
-        ax[1].semilogx(f[band], np.degrees(np.angle(frf["model"][band])), "C1")
         ax[1].set_ylabel("phase [deg]")
         ax[2].semilogx(f[band], frf["coherence"][band], "k")
+        ax[2].axhline(MIN_COHERENCE, color="0.5", ls=":", lw=1)
         ax[2].set_ylabel("coherence")
         ax[2].set_xlabel("frequency [Hz]")
-        fig.suptitle(f"current to gap: {r.label}")
+        lo, hi = frf["summary"]["band_Hz"]
+        for a in ax:
+            a.axvspan(lo, hi, color="C0", alpha=0.07)
+        ax[0].legend(fontsize=8, loc="lower left")
+        fig.suptitle(f"current to gap: {r.label} (shaded: the {lo:g}–{hi:g} Hz band of the figures)")
         fig.tight_layout()
         p = out / "frequency_response.png"
         fig.savefig(p, dpi=110)

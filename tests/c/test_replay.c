@@ -48,7 +48,7 @@ static void test_other_controllers(void) {
         CHECK(maglev_replay_control(ctls[c], w, y, cur, N, pt.u, x0, u2, msg, sizeof msg) == 0, "%s", msg);
         for (int k = 0; k < N; k++) worst = fmax(worst, fabs(u2[k] - u[k]));
         CHECK(worst == 0.0, "controller %d alone on the loop's signals: off by %g MU", c, worst);
-        MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 10, 7};
+        MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 10, 7, 0};
         CHECK(maglev_replay_predict(p, ctls[c], &f, w, y, u, N, pt.u, yp, up, NULL, NULL, msg, sizeof msg) == 0,
               "%s", msg);
         worst = 0.0;
@@ -86,7 +86,7 @@ int main(void) {
     for (int k = 0; k < N; k++) w[k] = pt.y + (k > 300 ? 0.04 : 0.0) - (k > 900 ? 0.07 : 0.0);
     CHECK(maglev_replay_closed_loop(p, &ctl, w, N, pt.u, u, y, NULL, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
 
-    MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 20, 3};
+    MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 20, 3, 0};
     CHECK(maglev_replay_predict(p, &ctl, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == 0, "%s", msg);
     int made = 0;
     double worst = 0.0;
@@ -113,9 +113,11 @@ int main(void) {
      * by the measured input, the filter also fed the measured current; exact model, exact predictions */
     static double cur[N], ip[N];
     CHECK(maglev_replay_closed_loop(p, &ctl, w, N, pt.u, NULL, NULL, NULL, NULL, cur, msg, sizeof msg) == 0, "%s", msg);
-    for (int with_i = 0; with_i < 2; with_i++) {
-        CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, with_i ? cur : NULL, 1e-3, N, yp, ip, e, s, msg,
-                                             sizeof msg) == 0, "%s", msg);
+    /* with_i: 0 no measured current, 1 measured current in the filter, 2 also driving the predictions */
+    for (int with_i = 0; with_i < 3; with_i++) {
+        f.current_input = with_i == 2;
+        CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, with_i ? cur : NULL, 1e-3, N, yp, ip, e, s, NULL, NULL,
+                                             msg, sizeof msg) == 0, "%s", msg);
         double wy = 0.0, wi = 0.0;
         made = 0;
         for (int k = 0; k < N; k++) {
@@ -126,20 +128,32 @@ int main(void) {
         }
         CHECK(made == (N - 20 + 2) / 3, "%d predictions", made);
         CHECK(wy < 1e-5 && wi < 1e-5, "measured-input predictions (current %s): y off by %g MU, i by %g A",
-              with_i ? "measured" : "not measured", wy, wi);
+              with_i == 2 ? "driving" : (with_i ? "measured" : "not measured"), wy, wi);
     }
-    CHECK(maglev_replay_predict_measured(q, &f, 1e-3, y, u, cur, 1e-3, N, yp, ip, NULL, NULL, msg, sizeof msg) == 0,
+    f.current_input = 0;
+    /* the filtered random force: finite with a positive spread at every sample, and near zero for
+     * the exact model (no force is missing) */
+    static double de[N], ds[N];
+    CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, cur, 1e-3, N, NULL, NULL, NULL, NULL, de, ds, msg,
+                                         sizeof msg) == 0, "%s", msg);
+    double dmax = 0.0;
+    for (int k = 0; k < N; k++) {
+        CHECK(isfinite(de[k]) && ds[k] > 0 && ds[k] <= 2.5e-4 * 1.0001, "sample %d: d %g, sd %g", k, de[k], ds[k]);
+        dmax = fmax(dmax, fabs(de[k]));
+    }
+    CHECK(dmax < 1e-5, "the exact model's random force reaches %g N", dmax);
+    CHECK(maglev_replay_predict_measured(q, &f, 1e-3, y, u, cur, 1e-3, N, yp, ip, NULL, NULL, NULL, NULL, msg, sizeof msg) == 0,
           "%s", msg);
     wrong = 0.0;
     for (int k = 0; k < N; k++)
         if (!isnan(yp[k])) wrong = fmax(wrong, fabs(yp[k] - y[k]));
     CHECK(wrong > 1e-4, "wrong model, measured input: %g", wrong);
-    CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, cur, 0.0, N, yp, ip, NULL, NULL, msg, sizeof msg) == -1 &&
+    CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, cur, 0.0, N, yp, ip, NULL, NULL, NULL, NULL, msg, sizeof msg) == -1 &&
               strstr(msg, "r_current"), "%s", msg);
 
     /* refusals: one message, nothing computed */
-    MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1}, {2.5e-4, NAN, 2.5e-4, 20, 1}, {2.5e-4, 8.0, -1.0, 20, 1},
-                          {2.5e-4, 8.0, 2.5e-4, -1, 1}, {2.5e-4, 8.0, 2.5e-4, 20, 0}};
+    MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1, 0}, {2.5e-4, NAN, 2.5e-4, 20, 1, 0}, {2.5e-4, 8.0, -1.0, 20, 1, 0},
+                          {2.5e-4, 8.0, 2.5e-4, -1, 1, 0}, {2.5e-4, 8.0, 2.5e-4, 20, 0, 0}};
     for (size_t b = 0; b < sizeof bad / sizeof bad[0]; b++) {
         msg[0] = 0;
         CHECK(maglev_replay_predict(p, &ctl, &bad[b], w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
