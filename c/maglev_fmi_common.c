@@ -135,7 +135,7 @@ int mf_accepted_guid(const char *dir, char *guid, size_t glen, char *msg, size_t
  * "name value" per line: they replace the C defaults, so that the FMU uses the start values its
  * model description states. No file (the CE152 FMU): the defaults. Returns 0, or -1 with msg. */
 #define START_VALUES_FILE "start_values.txt"
-static int load_start_values(MaglevPlant *m, const char *dir, char *msg, size_t len) {
+static int load_start_values(MaglevPlant *m, const char *dir, int *count, char *msg, size_t len) {
     char path[4096];
     if (!dir) return 0;
     size_t n = strlen(dir);
@@ -181,6 +181,7 @@ static int load_start_values(MaglevPlant *m, const char *dir, char *msg, size_t 
                 rc = -1;
             } else {
                 maglev_set_param(m, (MaglevVR)vr, value);
+                ++*count;
             }
         }
     }
@@ -197,7 +198,8 @@ int mf_init(MfInstance *f, const char *name, int logging, MfLogFn log, const Mag
     f->alloc = *alloc;
     f->time_vr = time_vr;
     maglev_defaults(&f->plant);
-    if (load_start_values(&f->plant, resources_dir, msg, msglen)) return -1;
+    if (load_start_values(&f->plant, resources_dir, &f->n_start_values, msg, msglen)) return -1;
+    memcpy(f->start_params, f->plant.p, sizeof f->start_params);
     f->state = MF_INSTANTIATED;
     return 0;
 }
@@ -251,9 +253,16 @@ int mf_terminate(MfInstance *f) {
     return MF_OK;
 }
 
-int mf_reset(MfInstance *f) {
+int mf_reset(MfInstance *f, const char *fn) {
     maglev_release(&f->plant, &f->alloc);
     maglev_defaults(&f->plant);
+    /* the start values of instantiation, not the C defaults: a rig's or calibrated FMU's parameters */
+    memcpy(f->plant.p, f->start_params, sizeof f->start_params);
+    if (f->n_start_values > 0)
+        mf_log(f, MF_OK, "logCalls", "%s: back to the state after instantiation, with the %d start values of "
+               "resources/start_values.txt", fn, f->n_start_values);
+    else
+        mf_log(f, MF_OK, "logCalls", "%s: back to the state after instantiation", fn);
     f->start_time = 0;
     f->stop_time = 0;
     f->stop_defined = 0;

@@ -48,6 +48,10 @@ typedef struct MfInstance {
     unsigned int time_vr;        /* value reference of the independent variable time (FMI 3.0), or MF_NO_TIME_VR */
     MaglevAllocator alloc;
     MaglevPlant plant;
+    /* The parameters right after instantiation (the defaults, then resources/start_values.txt): a reset
+     * goes back to them without reading the file again, which the importer may have removed since. */
+    double start_params[MAGLEV_NPARAMS];
+    int n_start_values;          /* how many of them came from start_values.txt */
     MfSnapshot *snapshots;
 } MfInstance;
 
@@ -83,7 +87,9 @@ int mf_setup_experiment(MfInstance *f, const char *fn, int tol_defined, double t
 int mf_enter_initialization(MfInstance *f);
 int mf_exit_initialization(MfInstance *f, const char *fn);
 int mf_terminate(MfInstance *f);
-int mf_reset(MfInstance *f);
+/* Back to the state right after instantiation (FMI 2.0 fmi2Reset, FMI 3.0 fmi3Reset): the start values
+ * the instance was made with, no experiment, the state machine in instantiated. */
+int mf_reset(MfInstance *f, const char *fn);
 
 int mf_get_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t nvr, double value[]);
 int mf_set_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t nvr, const double value[]);

@@ -2,6 +2,7 @@
  * FMU state save/restore and serialisation, the independent variable time, and that it steps the
  * plant exactly as the FMI 2.0 layer does (both are linked in: they share maglev_fmi_common.c).
  * Run under ASan/UBSan in CI (MAGLEV_SANITIZE=ON). */
+#define _POSIX_C_SOURCE 200809L /* mkdtemp (temp_dir.h), for a rig's resources folder */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -12,6 +13,7 @@
 #include "fmi3Functions.h"
 #include "maglev_fmi_common.h"
 #include "check.h"
+#include "temp_dir.h"
 
 #define VR_TIME ((fmi3ValueReference)MAGLEV_NVARS)
 
@@ -280,12 +282,46 @@ static void test_same_as_fmi2(void) {
     fmi3FreeInstance(c3);
 }
 
+/* fmi3Reset puts the FMU into the state right after fmi3InstantiateCoSimulation, a rig's start values
+ * (resources/start_values.txt) included: it shares mf_reset with fmi2Reset, which put the C defaults there. */
+static void test_reset_keeps_start_values(void) {
+    char dir[512], res[600], file[600];
+    if (!make_temp_dir(dir, sizeof dir, "reset3")) {
+        CHECK(0, "cannot make a temporary folder");
+        return;
+    }
+    snprintf(res, sizeof res, "%s/", dir); /* FMI 3.0: a path with a trailing separator, no URI */
+    snprintf(file, sizeof file, "%s/start_values.txt", dir);
+    CHECK(write_text(file, "k_c 1.5e-05\n") == 0, "cannot write %s", file);
+    fmi3Instance c = fmi3InstantiateCoSimulation("rig", MAGLEV_GUID, res, fmi3False, fmi3False, fmi3False, fmi3False,
+                                                 NULL, 0, NULL, logger, NULL);
+    CHECK(c != NULL, "rig FMU refused: %s", last_log);
+    remove(file);
+    remove_dir(dir);
+    if (!c) return;
+    fmi3ValueReference kvr = VR_k_c;
+    for (int round = 0; round < 2; round++) {
+        double kc = -1, last;
+        fmi3Status st;
+        CHECK(fmi3EnterInitializationMode(c, fmi3False, 0, 0.0, fmi3False, 0) == fmi3OK, "round %d: enter: %s", round,
+              last_log);
+        CHECK(fmi3GetFloat64(c, &kvr, 1, &kc, 1) == fmi3OK && kc == 1.5e-5, "round %d: k_c = %g, not the rig's "
+              "1.5e-05", round, kc);
+        set1(c, VR_k_c, 2e-5, &st);
+        CHECK(fmi3ExitInitializationMode(c) == fmi3OK, "round %d: exit: %s", round, last_log);
+        CHECK(step(c, 0.0, 1e-3, &last) == fmi3OK, "round %d: step: %s", round, last_log);
+        CHECK(fmi3Reset(c) == fmi3OK, "round %d: reset: %s", round, last_log);
+    }
+    fmi3FreeInstance(c);
+}
+
 int main(void) {
     test_instantiate_arguments();
     test_call_sequence();
     test_bad_values();
     test_state_save_restore_and_serialization();
     test_same_as_fmi2();
+    test_reset_keeps_start_values();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }

@@ -1,21 +1,16 @@
 /* C tests of the FMI 2.0 layer: call sequences, bad arguments, several instances,
  * FMU state round trips. Run under ASan/UBSan in CI (MAGLEV_SANITIZE=ON). */
-#define _POSIX_C_SOURCE 200809L /* mkdtemp, for the resources folder of test_issued_guid */
+#define _POSIX_C_SOURCE 200809L /* mkdtemp (temp_dir.h), for the resources folders of the tests */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
-#ifdef _WIN32 /* the Windows build (cross-compiled with mingw-w64, run under wine): its own temporary folder */
-#include <direct.h>
-#include <process.h>
-#include <windows.h>
-#endif
 
 #include "fmi2Functions.h"
 #include "maglev_plant.h"
 #include "check.h"
+#include "temp_dir.h"
 
 #define GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 
@@ -759,42 +754,13 @@ static void test_refused_step_keeps_time(void) {
 /* A calibrated FMU's GUID, issued by the packager in resources/guid.txt: exactly that GUID is
  * accepted (the built-in one no longer), and a guid.txt without a GUID is refused, naming the file. */
 static void write_file(const char *path, const char *text) {
-    FILE *fp = fopen(path, "w");
-    CHECK(fp != NULL, "cannot write %s", path);
-    if (!fp) return;
-    fputs(text, fp);
-    fclose(fp);
-}
-
-/* A new folder: dir, with '/' separators; NULL when it cannot be made. */
-static char *make_temp_dir(char *dir, size_t len) {
-#ifdef _WIN32
-    char base[MAX_PATH + 1];
-    DWORD n = GetTempPathA(sizeof base, base); /* ends with a separator */
-    if (n == 0 || n >= sizeof base) return NULL;
-    snprintf(dir, len, "%smaglev_guid_%d", base, _getpid());
-    for (char *p = dir; *p; p++)
-        if (*p == '\\') *p = '/';
-    return _mkdir(dir) == 0 ? dir : NULL;
-#else
-    snprintf(dir, len, "/tmp/maglev_guid_XXXXXX");
-    return mkdtemp(dir);
-#endif
-}
-
-static void remove_dir(const char *dir) {
-#ifdef _WIN32
-    _rmdir(dir);
-#else
-    rmdir(dir);
-#endif
+    CHECK(write_text(path, text) == 0, "cannot write %s", path);
 }
 
 static void test_issued_guid(void) {
     char dir[512], uri[600], file[600];
-    CHECK(make_temp_dir(dir, sizeof dir) != NULL, "cannot make a temporary folder");
-    /* file:///tmp/x on Linux, file:///C:/x on Windows (mf_uri_to_path turns it into C:/x) */
-    snprintf(uri, sizeof uri, "file://%s%s", dir[0] == '/' ? "" : "/", dir);
+    CHECK(make_temp_dir(dir, sizeof dir, "guid") != NULL, "cannot make a temporary folder");
+    folder_uri(dir, uri, sizeof uri); /* file:///C:/x on Windows: mf_uri_to_path turns it into C:/x */
     snprintf(file, sizeof file, "%s/guid.txt", dir);
     const char *issued = "{0b6c2a8e-1111-5222-8333-444455556666}";
     write_file(file, "{0b6c2a8e-1111-5222-8333-444455556666}\n");
@@ -813,6 +779,42 @@ static void test_issued_guid(void) {
     /* no guid.txt: the built-in GUID, as before */
     c = fmi2Instantiate("nominal", fmi2CoSimulation, GUID, uri, &callbacks, 0, 0);
     CHECK(c != NULL, "built-in GUID refused without guid.txt: %s", last_log);
+    fmi2FreeInstance(c);
+}
+
+/* 13: fmi2Reset puts the FMU into the state right after fmi2Instantiate (FMI 2.0, 4.2.1), and a rig's or
+ * calibrated FMU's start values in resources/start_values.txt are part of that state: reset used to put the
+ * C defaults in their place (k_c back to 6.9e-6), return OK and log nothing. The file is gone before the
+ * reset: the instance keeps what it read, as an importer may clean up the unpacked FMU early. */
+static void test_reset_keeps_start_values(void) {
+    char dir[512], uri[600], file[600];
+    if (!make_temp_dir(dir, sizeof dir, "reset")) {
+        CHECK(0, "cannot make a temporary folder");
+        return;
+    }
+    folder_uri(dir, uri, sizeof uri);
+    snprintf(file, sizeof file, "%s/start_values.txt", dir);
+    write_file(file, "# a rig's parameters\nk_c 1.5e-05\nsolver_step 5e-05\n");
+    fmi2Component c = fmi2Instantiate("rig", fmi2CoSimulation, GUID, uri, &callbacks, fmi2False, fmi2True);
+    CHECK(c != NULL, "rig FMU refused: %s", last_log);
+    remove(file);
+    remove_dir(dir);
+    if (!c) return;
+    for (int round = 0; round < 2; round++) {
+        fmi2Status st;
+        CHECK(fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0) == fmi2OK, "round %d: setup: %s", round, last_log);
+        CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "round %d: enter: %s", round, last_log);
+        double kc = get1(c, VR_k_c, &st), h = get1(c, VR_solver_step, NULL);
+        CHECK(st == fmi2OK && kc == 1.5e-5 && h == 5e-5, "round %d: k_c = %g, solver_step = %g, not the rig's "
+              "1.5e-05, 5e-05", round, kc, h);
+        CHECK(set1(c, VR_k_c, 2e-5) == fmi2OK, "round %d: k_c settable in initialization mode", round);
+        CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "round %d: exit: %s", round, last_log);
+        CHECK(fmi2DoStep(c, 0.0, 1e-3, fmi2True) == fmi2OK, "round %d: step: %s", round, last_log);
+        last_log[0] = 0;
+        CHECK(fmi2Reset(c) == fmi2OK, "round %d: reset: %s", round, last_log);
+        CHECK(logged("fmi2Reset") && logged("start_values.txt"), "round %d: reset logs no word of the start "
+              "values (logging on): '%s'", round, last_log);
+    }
     fmi2FreeInstance(c);
 }
 
@@ -837,6 +839,7 @@ int main(void) {
     test_instantiate_failure_logged();
     test_refused_step_keeps_time();
     test_issued_guid();
+    test_reset_keeps_start_values();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }
