@@ -38,13 +38,20 @@ typedef void (*MfLogFn)(const struct MfInstance *f, int status, const char *cate
 
 typedef struct MfSnapshot MfSnapshot;
 
+/* The experiment fmi2SetupExperiment (FMI 2.0) or fmi3EnterInitializationMode (FMI 3.0) gave. It is part of
+ * an FMU state, so that a state restored after a reset, or in another instance, starts and stops where it
+ * did. What is not defined is 0, so that the same experiment always serializes to the same bytes. */
+typedef struct {
+    double start_time, stop_time, tolerance;
+    int stop_defined, tol_defined;
+} MfExperiment;
+
 typedef struct MfInstance {
     char name[128];
     MfLogFn log;
     int logging;
     MfState state;
-    double start_time, stop_time;
-    int stop_defined;
+    MfExperiment exp;
     unsigned int time_vr;        /* value reference of the independent variable time (FMI 3.0), or MF_NO_TIME_VR */
     MaglevAllocator alloc;
     MaglevPlant plant;

@@ -935,16 +935,18 @@ int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator 
     return 0;
 }
 
-/* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, u32 tag, i32 initialized, doubles
- * (params, time, u, x, v, i, F, xs), i32 contact, hist pairs, u64 FNV-1a of all before. */
+/* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, u32 tag code, i32 initialized, doubles
+ * (params, time, u, x, v, i, F, xs, the tag's values), i32 contact, u32 tag flags, hist pairs, u64 FNV-1a
+ * of all before. Version 4 added the tag's values and flags (the FMU's experiment): an image of version 3
+ * lacks them, and is refused by its version rather than misread. */
 #define SER_MAGIC "MGLV"
-#define SER_VERSION 3u
+#define SER_VERSION 4u
 #define SER_NSTATE 7
 
 static size_t ser_header(void) { return 4 + 4 + 4 + 8 + 4 + 4; }
 
 size_t maglev_serialized_size(const MaglevPlant *m) {
-    return ser_header() + (MAGLEV_NPARAMS + SER_NSTATE) * 8 + 4 + m->hist.len * 16 + 8;
+    return ser_header() + (MAGLEV_NPARAMS + SER_NSTATE + MAGLEV_TAG_NVALUES) * 8 + 4 + 4 + m->hist.len * 16 + 8;
 }
 
 static unsigned long long fnv1a(const unsigned char *b, size_t n) {
@@ -966,7 +968,7 @@ static const unsigned char *get(const unsigned char *b, void *v, size_t n) {
     return b + n;
 }
 
-void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf) {
+void maglev_serialize(const MaglevPlant *m, const MaglevTag *tag, unsigned char *buf) {
     unsigned char *b = buf;
     unsigned int version = SER_VERSION, np = MAGLEV_NPARAMS;
     unsigned long long hl = m->hist.len;
@@ -976,11 +978,13 @@ void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf
     b = put(b, &version, 4);
     b = put(b, &np, 4);
     b = put(b, &hl, 8);
-    b = put(b, &tag, 4);
+    b = put(b, &tag->code, 4);
     b = put(b, &initialized, 4);
     b = put(b, m->p, sizeof m->p);
     b = put(b, st, sizeof st);
+    b = put(b, tag->value, sizeof tag->value);
     b = put(b, &contact, 4);
+    b = put(b, &tag->flags, 4);
     for (size_t k = 0; k < m->hist.len; k++) {
         b = put(b, &m->hist.t[k], 8);
         b = put(b, &m->hist.u[k], 8);
@@ -989,11 +993,12 @@ void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf
     put(b, &sum, 8);
 }
 
-int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *buf, size_t size,
+int maglev_deserialize(MaglevPlant *m, MaglevTag *tag, const unsigned char *buf, size_t size,
                        const MaglevAllocator *a, char *msg, size_t len) {
     if (!buf) return fail(msg, len, "serialized state is NULL");
     if (size < ser_header() + 8) return fail(msg, len, "serialized state too short (%zu bytes)", size);
     unsigned int version, np, tg;
+    MaglevTag tg_read;
     unsigned long long hl, sum;
     int initialized;
     const unsigned char *b = buf;
@@ -1017,7 +1022,10 @@ int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *b
     double st[SER_NSTATE];
     b = get(b, tmp.p, sizeof tmp.p);
     b = get(b, st, sizeof st);
+    b = get(b, tg_read.value, sizeof tg_read.value);
     b = get(b, &tmp.contact, 4);
+    b = get(b, &tg_read.flags, 4);
+    tg_read.code = tg;
     tmp.time = st[0]; tmp.u = st[1]; tmp.x = st[2]; tmp.v = st[3]; tmp.i = st[4]; tmp.F = st[5]; tmp.xs = st[6];
     tmp.initialized = initialized;
     tmp.hist.len = 0;
@@ -1041,6 +1049,6 @@ int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *b
     }
     maglev_release(m, a);
     *m = tmp;
-    *tag = tg;
+    *tag = tg_read;
     return 0;
 }

@@ -187,12 +187,22 @@ double maglev_input_for_current(const MaglevPlant *m, double i);
 int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a);
 void maglev_release(MaglevPlant *m, const MaglevAllocator *a);
 
+/* What a caller keeps in a plant's byte image, under the image's version and checksum, uninterpreted by
+ * the plant: the FMU stores its state machine's state in code and its experiment in flags and value
+ * (maglev_fmi_common.c). Its checks are the caller's. */
+#define MAGLEV_TAG_NVALUES 3
+typedef struct {
+    unsigned int code;
+    unsigned int flags;
+    double value[MAGLEV_TAG_NVALUES];
+} MaglevTag;
+
 /* Serialisation: a versioned, checksummed byte image of the whole plant, with a caller's tag
- * (the FMU stores its state-machine state there) under the same checksum. Deserialisation
- * checks the values with maglev_check_plant: a checksum only catches accidents. */
+ * under the same checksum. Deserialisation checks the values with maglev_check_plant: a checksum
+ * only catches accidents. */
 size_t maglev_serialized_size(const MaglevPlant *m);
-void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf);
-int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *buf, size_t size,
+void maglev_serialize(const MaglevPlant *m, const MaglevTag *tag, unsigned char *buf);
+int maglev_deserialize(MaglevPlant *m, MaglevTag *tag, const unsigned char *buf, size_t size,
                        const MaglevAllocator *a, char *msg, size_t msglen);
 
 /* malloc/free allocator for users outside an FMU (tests, the fast path). */

@@ -315,6 +315,40 @@ static void test_reset_keeps_start_values(void) {
     fmi3FreeInstance(c);
 }
 
+/* An FMU state holds the experiment fmi3EnterInitializationMode gave (start, stop, tolerance): after a reset
+ * and fmi3SetFMUState the FMU started at 0 instead of 5 s and stepped past the stop time. */
+static void check_experiment_restored(fmi3Instance c, const char *what) {
+    double last = -1;
+    CHECK(fmi3ExitInitializationMode(c) == fmi3OK, "%s: exit: %s", what, last_log);
+    last_log[0] = 0;
+    CHECK(step(c, 5.0, 1e-3, &last) == fmi3OK && last == 5.001, "%s: step from startTime 5 s: last %g: %s", what,
+          last, last_log);
+    last_log[0] = 0;
+    CHECK(step(c, 5.001, 10.0, &last) == fmi3Error && logged("stopTime"), "%s: a step past stopTime 6 s not "
+          "refused: '%s'", what, last_log);
+}
+
+static void test_state_holds_experiment(void) {
+    fmi3Instance c = make("experiment");
+    CHECK(fmi3EnterInitializationMode(c, fmi3True, 1e-6, 5.0, fmi3True, 6.0) == fmi3OK, "enter: %s", last_log);
+    fmi3FMUState s = NULL, r = NULL;
+    CHECK(fmi3GetFMUState(c, &s) == fmi3OK, "state in initialization mode: %s", last_log);
+    size_t size = 0;
+    CHECK(fmi3SerializedFMUStateSize(c, s, &size) == fmi3OK, "size: %s", last_log);
+    fmi3Byte *buf = malloc(size ? size : 1);
+    CHECK(fmi3SerializeFMUState(c, s, buf, size) == fmi3OK, "serialize: %s", last_log);
+    CHECK(fmi3Reset(c) == fmi3OK, "reset: %s", last_log);
+    CHECK(fmi3SetFMUState(c, s) == fmi3OK, "set state: %s", last_log);
+    check_experiment_restored(c, "after a reset");
+    fmi3Instance d = make("experiment2");
+    CHECK(fmi3DeserializeFMUState(d, buf, size, &r) == fmi3OK, "deserialize: %s", last_log);
+    CHECK(fmi3SetFMUState(d, r) == fmi3OK, "set the deserialized state: %s", last_log);
+    check_experiment_restored(d, "deserialized into another instance");
+    free(buf);
+    fmi3FreeInstance(c);
+    fmi3FreeInstance(d);
+}
+
 int main(void) {
     test_instantiate_arguments();
     test_call_sequence();
@@ -322,6 +356,7 @@ int main(void) {
     test_state_save_restore_and_serialization();
     test_same_as_fmi2();
     test_reset_keeps_start_values();
+    test_state_holds_experiment();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }

@@ -666,24 +666,34 @@ static void test_deserialize_checks_values(void) {
     fmi2SerializedFMUstateSize(c, s, &size);
     fmi2Byte *buf = malloc(size), *bad = malloc(size);
     fmi2SerializeFMUstate(c, s, buf, size);
-    /* layout (maglev_plant.c): 28-byte header, the parameters, then time, u, x, v, i, F, contact */
-    size_t state_at = 28 + 8 * (size_t)MAGLEV_NPARAMS;
+    /* layout (maglev_plant.c): 28-byte header, the parameters, then time, u, x, v, i, F, xs, the experiment
+     * (startTime, stopTime, tolerance; neither of the last two defined here), contact, the experiment's flags */
+    size_t state_at = 28 + 8 * (size_t)MAGLEV_NPARAMS, flags_at = state_at + 10 * 8 + 4;
     struct { size_t at; double value; const char *what; } cases[] = {
         {state_at + 2 * 8, 8.3e-3, "x = x_0"},   {state_at + 2 * 8, -5.0, "x = -5 m"},
         {state_at + 4 * 8, -1.0, "i = -1 A"},    {state_at + 4 * 8, 2.0, "i above i_max"},
         {state_at + 3 * 8, NAN, "v = NaN"},      {state_at + 0 * 8, 1e300, "time = 1e300 s"},
         {28 + 8 * (size_t)(VR_x_max - MAGLEV_FIRST_PARAM), 9e-3, "x_max above x_0"},
         {28 + 8 * (size_t)(VR_m_k - MAGLEV_FIRST_PARAM), -1.0, "m_k < 0"},
+        {state_at + 7 * 8, NAN, "startTime NaN"}, {state_at + 7 * 8, 2e9, "startTime 2e9 s"},
+        {state_at + 8 * 8, 1.0, "an undefined stopTime of 1 s"}, {state_at + 9 * 8, 1e-6, "an undefined tolerance"},
+        {flags_at, 0.0, "flags: tolerance 0 defined"}, {flags_at, 0.0, "flags: unknown bit"},
     };
     for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
         memcpy(bad, buf, size);
-        memcpy(bad + cases[k].at, &cases[k].value, 8);
+        if (cases[k].at == flags_at) {
+            unsigned int flags = strstr(cases[k].what, "unknown") ? 4u : 2u;
+            memcpy(bad + flags_at, &flags, 4);
+        } else {
+            memcpy(bad + cases[k].at, &cases[k].value, 8);
+        }
         unsigned long long sum = fnv1a(bad, size - 8);
         memcpy(bad + size - 8, &sum, 8);
         fmi2FMUstate r = NULL;
         last_log[0] = 0;
         CHECK(fmi2DeSerializeFMUstate(c, bad, size, &r) == fmi2Error && r == NULL, "%s accepted", cases[k].what);
         CHECK(logged("cannot have"), "%s: %s", cases[k].what, last_log);
+        CHECK(cases[k].at < state_at + 7 * 8 || logged("experiment"), "%s: %s", cases[k].what, last_log);
     }
     /* the untouched buffer, its checksum recomputed, still restores: the test edits only values */
     memcpy(bad, buf, size);
@@ -818,6 +828,99 @@ static void test_reset_keeps_start_values(void) {
     fmi2FreeInstance(c);
 }
 
+/* Serializes an FMU state into a new buffer (*size bytes); NULL when refused. */
+static fmi2Byte *serialize(fmi2Component c, fmi2FMUstate s, size_t *size) {
+    *size = 0;
+    if (fmi2SerializedFMUstateSize(c, s, size) != fmi2OK || *size == 0) return NULL;
+    fmi2Byte *buf = malloc(*size);
+    if (buf && fmi2SerializeFMUstate(c, s, buf, *size) != fmi2OK) {
+        free(buf);
+        return NULL;
+    }
+    return buf;
+}
+
+/* After fmi2SetFMUstate, the instance starts and stops where the state's experiment says: enter and exit
+ * initialization, a step from start, a step past stop refused. */
+static void check_experiment_restored(fmi2Component c, const char *what) {
+    CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "%s: enter: %s", what, last_log);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "%s: exit: %s", what, last_log);
+    double t = -1;
+    CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 5.0, "%s: time %g after "
+          "initialization, not the startTime 5 s", what, t);
+    last_log[0] = 0;
+    CHECK(fmi2DoStep(c, 5.0, 1e-3, fmi2True) == fmi2OK, "%s: step from startTime 5 s: %s", what, last_log);
+    last_log[0] = 0;
+    CHECK(fmi2DoStep(c, 5.001, 10.0, fmi2True) == fmi2Error && logged("stopTime"), "%s: a step past stopTime 6 s "
+          "not refused: '%s'", what, last_log);
+}
+
+/* 14: an FMU state holds the experiment fmi2SetupExperiment gave (start, stop and whether it is defined,
+ * tolerance): it held the plant and the state machine only, so that after a reset and fmi2SetFMUstate the
+ * FMU started at 0 instead of 5 s, refused DoStep(5, 1e-3) and stepped past the stop time. The same through
+ * the serialized form, in another instance; the format's version went from 3 to 4 with it, and old images
+ * are refused by their version. */
+static void test_state_holds_experiment(void) {
+    fmi2Component c = make("experiment");
+    CHECK(fmi2SetupExperiment(c, fmi2True, 1e-6, 5.0, fmi2True, 6.0) == fmi2OK, "setup: %s", last_log);
+    fmi2FMUstate inst = NULL, init = NULL;
+    CHECK(fmi2GetFMUstate(c, &inst) == fmi2OK, "state in instantiated: %s", last_log);
+    size_t size = 0;
+    fmi2Byte *buf = serialize(c, inst, &size);
+    CHECK(buf != NULL, "serialize: %s", last_log);
+    CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "enter: %s", last_log);
+    CHECK(fmi2GetFMUstate(c, &init) == fmi2OK, "state in initialization mode: %s", last_log);
+    CHECK(fmi2Reset(c) == fmi2OK, "reset: %s", last_log);
+    CHECK(fmi2SetFMUstate(c, inst) == fmi2OK, "set the instantiated state: %s", last_log);
+    check_experiment_restored(c, "instantiated state after a reset");
+    CHECK(fmi2Reset(c) == fmi2OK, "reset: %s", last_log);
+    CHECK(fmi2SetFMUstate(c, init) == fmi2OK, "set the initialization-mode state: %s", last_log);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "exit: %s", last_log);
+    double t = -1;
+    CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 5.0, "initialization-mode state: "
+          "time %g, not 5 s", t);
+    CHECK(fmi2DoStep(c, 5.0, 2.0, fmi2True) == fmi2Error && logged("stopTime"), "initialization-mode state: a step "
+          "past stopTime 6 s not refused: '%s'", last_log);
+
+    fmi2Component d = make("experiment2");
+    fmi2FMUstate r = NULL;
+    CHECK(buf && fmi2DeSerializeFMUstate(d, buf, size, &r) == fmi2OK, "deserialize: %s", last_log);
+    CHECK(fmi2SetFMUstate(d, r) == fmi2OK, "set the deserialized state: %s", last_log);
+    check_experiment_restored(d, "deserialized into another instance");
+    /* the tolerance is part of it: the same experiment without one serializes differently */
+    fmi2Component e = make("experiment3");
+    fmi2SetupExperiment(e, fmi2False, 0, 5.0, fmi2True, 6.0);
+    fmi2FMUstate q = NULL;
+    fmi2GetFMUstate(e, &q);
+    size_t size2 = 0;
+    fmi2Byte *buf2 = serialize(e, q, &size2);
+    CHECK(buf && buf2 && size2 == size && memcmp(buf, buf2, size) != 0, "the tolerance is not in the serialized "
+          "state");
+    /* an image of the old format (version 3: no experiment between xs and contact, no flags after it) is
+     * refused by its version, not misread */
+    size_t at = 28 + 8 * ((size_t)MAGLEV_NPARAMS + 7), old_size = size - 28;
+    if (buf && size > at + 32) {
+        fmi2Byte *old = malloc(old_size);
+        memcpy(old, buf, at);
+        memcpy(old + at, buf + at + 24, 4);                      /* contact */
+        memcpy(old + at + 4, buf + at + 32, size - at - 32 - 8); /* the delay history */
+        unsigned int v3 = 3;
+        memcpy(old + 4, &v3, 4);
+        unsigned long long sum = fnv1a(old, old_size - 8);
+        memcpy(old + old_size - 8, &sum, 8);
+        fmi2FMUstate o = NULL;
+        last_log[0] = 0;
+        CHECK(fmi2DeSerializeFMUstate(d, old, old_size, &o) == fmi2Error && o == NULL && logged("version 3"),
+              "a version-3 image: '%s'", last_log);
+        free(old);
+    }
+    free(buf);
+    free(buf2);
+    fmi2FreeInstance(c);
+    fmi2FreeInstance(d);
+    fmi2FreeInstance(e);
+}
+
 int main(void) {
     test_instantiate_arguments();
     test_call_sequence();
@@ -840,6 +943,7 @@ int main(void) {
     test_refused_step_keeps_time();
     test_issued_guid();
     test_reset_keeps_start_values();
+    test_state_holds_experiment();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }
