@@ -224,7 +224,8 @@ void mf_release(MfInstance *f) {
  * and a deserialized FMU state); 0, or -1 with msg. */
 static int check_experiment(const MfExperiment *e, char *msg, size_t len) {
     if (e->tol_defined ? !(isfinite(e->tolerance) && e->tolerance > 0) : e->tolerance != 0) {
-        snprintf(msg, len, "tolerance %g must be > 0 and finite%s", e->tolerance, e->tol_defined ? "" : " (or 0 when undefined)");
+        snprintf(msg, len, "tolerance %g must be > 0 and finite%s", e->tolerance,
+                 e->tol_defined ? "" : " (or 0 when undefined)");
         return -1;
     }
     if (!(fabs(e->start_time) <= MAGLEV_TIME_MAX)) {

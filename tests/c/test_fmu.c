@@ -8,6 +8,7 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
+#include "maglev_fmi_common.h"
 #include "maglev_plant.h"
 #include "check.h"
 #include "temp_dir.h"
@@ -372,8 +373,10 @@ static void test_step_work_bounded(void) {
     (void)t;
 }
 
-/* 2: long steps. A ball at rest on a stop is fast-forwarded exactly; a levitating ball falls onto a
- * stop within the budget and the rest of a 100 s step is then at rest. */
+/* 2: long steps. A ball at rest on a stop is fast-forwarded exactly, whatever the step. A levitating ball
+ * is counted in full before the step (defect 6 of docs/fuzz.md): 100 s of 0.1 ms substeps are over the
+ * budget, although the ball would reach a stop within a second; 10 s are not, and after them the ball
+ * rests there for the remaining 90 s. */
 static void test_long_steps(void) {
     fmi2Component c = make_initialized("floor", VR_u, 0.0);
     CHECK(fmi2DoStep(c, 0, 100.0, fmi2True) == fmi2OK, "100 s on the floor: %s", last_log);
@@ -389,9 +392,12 @@ static void test_long_steps(void) {
     c = make_levitating("lev", &u_eq);
     double up = u_eq * 1.05;
     set1(c, VR_u, up);
-    CHECK(fmi2DoStep(c, 0, 100.0, fmi2True) == fmi2OK, "100 s from levitation: %s", last_log);
+    CHECK(fmi2DoStep(c, 0, 100.0, fmi2True) == fmi2Error && logged("solver_step"), "100 s from levitation: %s",
+          last_log);
+    CHECK(fmi2DoStep(c, 0, 10.0, fmi2True) == fmi2OK, "10 s from levitation: %s", last_log);
     fmi2GetReal(c, VR_OUT, 4, y);
     CHECK(y[1] == 6.3e-3 && y[2] == 0.0, "more current must end at the upper stop: x %g v %g", y[1], y[2]);
+    CHECK(fmi2DoStep(c, 10.0, 90.0, fmi2True) == fmi2OK, "90 s at rest on the upper stop: %s", last_log);
     fmi2FreeInstance(c);
 
     /* with a force lag the lag relaxes exactly while the ball rests: compare with 1 ms steps */
@@ -792,10 +798,10 @@ static void test_issued_guid(void) {
     fmi2FreeInstance(c);
 }
 
-/* 13: fmi2Reset puts the FMU into the state right after fmi2Instantiate (FMI 2.0, 4.2.1), and a rig's or
- * calibrated FMU's start values in resources/start_values.txt are part of that state: reset used to put the
- * C defaults in their place (k_c back to 6.9e-6), return OK and log nothing. The file is gone before the
- * reset: the instance keeps what it read, as an importer may clean up the unpacked FMU early. */
+/* 13 (defect 4 of docs/fuzz.md): fmi2Reset puts the FMU into the state right after fmi2Instantiate, and a
+ * rig's or calibrated FMU's start values in resources/start_values.txt are part of that state: reset used to
+ * put the C defaults in their place (k_c back to 6.9e-6), return OK and log nothing. The file is gone before
+ * the reset: the instance keeps what it read, as an importer may clean up the unpacked FMU early. */
 static void test_reset_keeps_start_values(void) {
     char dir[512], uri[600], file[600];
     if (!make_temp_dir(dir, sizeof dir, "reset")) {
@@ -812,7 +818,8 @@ static void test_reset_keeps_start_values(void) {
     if (!c) return;
     for (int round = 0; round < 2; round++) {
         fmi2Status st;
-        CHECK(fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0) == fmi2OK, "round %d: setup: %s", round, last_log);
+        CHECK(fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0) == fmi2OK, "round %d: setup: %s", round,
+              last_log);
         CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "round %d: enter: %s", round, last_log);
         double kc = get1(c, VR_k_c, &st), h = get1(c, VR_solver_step, NULL);
         CHECK(st == fmi2OK && kc == 1.5e-5 && h == 5e-5, "round %d: k_c = %g, solver_step = %g, not the rig's "
@@ -855,11 +862,11 @@ static void check_experiment_restored(fmi2Component c, const char *what) {
           "not refused: '%s'", what, last_log);
 }
 
-/* 14: an FMU state holds the experiment fmi2SetupExperiment gave (start, stop and whether it is defined,
- * tolerance): it held the plant and the state machine only, so that after a reset and fmi2SetFMUstate the
- * FMU started at 0 instead of 5 s, refused DoStep(5, 1e-3) and stepped past the stop time. The same through
- * the serialized form, in another instance; the format's version went from 3 to 4 with it, and old images
- * are refused by their version. */
+/* 14 (defect 5 of docs/fuzz.md): an FMU state holds the experiment fmi2SetupExperiment gave (start, stop and
+ * whether it is defined, tolerance): it held the plant and the state machine only, so that after a reset and
+ * fmi2SetFMUstate the FMU started at 0 instead of 5 s, refused DoStep(5, 1e-3) and stepped past the stop time.
+ * The same through the serialized form, in another instance; the format's version went from 3 to 4 with it,
+ * and old images are refused by their version. */
 static void test_state_holds_experiment(void) {
     fmi2Component c = make("experiment");
     CHECK(fmi2SetupExperiment(c, fmi2True, 1e-6, 5.0, fmi2True, 6.0) == fmi2OK, "setup: %s", last_log);
@@ -921,6 +928,100 @@ static void test_state_holds_experiment(void) {
     fmi2FreeInstance(e);
 }
 
+/* 15: the work budget is decided before integrating (defect 6 of docs/fuzz.md). A step it refuses spent the
+ * whole budget first (500000 RK4 substeps, up to a quarter of a second), and its message blamed solver_step
+ * also where the friction, the voltage drive or the force lag set the substeps. Now it is refused at once,
+ * no RK4 evaluation spent (the plant's work counter), naming what sets the substeps; a long step within the
+ * budget still runs. An amplifier transient under a force lag is named too (the plant case). The FMU cases
+ * have a voltage drive (R_c > 0): its current has no closed form, so the ball never counts as at rest, and
+ * every one of these steps was refused before too (after the work). */
+static fmi2Component make_free_ball(const char *name, const MaglevVR *vr, const double *val, int n) {
+    fmi2Component c = make(name);
+    set1(c, VR_x_start, 0.0032); /* between the stops: the ball cannot be at rest */
+    for (int k = 0; k < n; k++) CHECK(set1(c, vr[k], val[k]) == fmi2OK, "%s: %s", name, last_log);
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(c);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "%s: %s", name, last_log);
+    return c;
+}
+
+static void test_budget_decided_before_integrating(void) {
+    /* the plant: a refused step has spent nothing, an accepted one its substeps */
+    char msg[MAGLEV_MSG_LEN] = "";
+    MaglevPlant m;
+    maglev_defaults(&m);
+    double x = 0.0032, i = (8.3e-3 - x) * sqrt(8.4e-3 * 9.81 / 6.9e-6);
+    maglev_set_param(&m, VR_x_start, x);
+    maglev_set_param(&m, VR_i_start, i);
+    maglev_set_param(&m, VR_solver_step, 1e-6);
+    CHECK(maglev_initialize(&m, 0.0, i / 1.5, &maglev_std_allocator, msg, sizeof msg) == 0, "init: %s", msg);
+    m.work = -1;
+    CHECK(maglev_step(&m, 10.0, &maglev_std_allocator, msg, sizeof msg) == MAGLEV_REFUSED && m.work == 0 &&
+          strstr(msg, "solver_step"), "10 s at 1 us substeps: %ld RK4 evaluations spent: %s", m.work, msg);
+    CHECK(maglev_step(&m, 0.2, &maglev_std_allocator, msg, sizeof msg) == 0 && m.work > 100000 &&
+          m.work <= MAGLEV_STEP_BUDGET, "0.2 s at 1 us substeps: %ld RK4 evaluations: %s", m.work, msg);
+    maglev_release(&m, &maglev_std_allocator);
+    /* an amplifier transient under a force lag starts at T_a/8 substeps, in every piece a delayed input
+     * change begins: 20000 changes within the delay T_d = 1 s put a 1 s step over the budget */
+    maglev_defaults(&m);
+    maglev_set_param(&m, VR_T_d, 1.0);
+    maglev_set_param(&m, VR_T_F, 1e-3);
+    maglev_set_param(&m, VR_T_a, 1e-5);
+    CHECK(maglev_initialize(&m, 0.0, 0.3, &maglev_std_allocator, msg, sizeof msg) == 0, "init: %s", msg);
+    int ok = 1;
+    for (int k = 0; k < 20000 && ok; k++)
+        ok = maglev_set_input(&m, k % 2 ? 0.3 : 0.5, &maglev_std_allocator, msg, sizeof msg) == 0 &&
+             maglev_step(&m, 5e-5, &maglev_std_allocator, msg, sizeof msg) == 0;
+    CHECK(ok, "20000 steps of 50 us: %s", msg);
+    CHECK(maglev_step(&m, 0.999, &maglev_std_allocator, msg, sizeof msg) == MAGLEV_REFUSED && m.work == 0 &&
+          strstr(msg, "T_a = 1e-05 s") && strstr(msg, "pieces (the delay T_d)") && !strstr(msg, "solver_step"),
+          "a 1 s step through 20000 input changes: %ld RK4 evaluations: %s", m.work, msg);
+    maglev_release(&m, &maglev_std_allocator);
+
+    /* the FMU: the message names what sets the substeps; the instance carries on */
+    struct {
+        const char *what;
+        int n;
+        MaglevVR vr[2];
+        double val[2], h;
+        const char *names[2];
+    } cases[] = { /* R_c = 1 Ohm with L_0 = 0.1 H: the coil allows substeps of 20 ms, so the others set them */
+        {"solver_step", 2, {VR_R_c, VR_solver_step}, {1.0, 1e-6}, 10.0, {"solver_step = 1e-06 s"}},
+        {"friction", 2, {VR_R_c, VR_F_c}, {1.0, 2e-3}, 100.0, {"F_c = 0.002 N"}}, /* substeps of 42 us */
+        {"force lag", 2, {VR_R_c, VR_T_F}, {1.0, 1e-5}, 20.0, {"T_F = 1e-05 s"}},  /* 20 us */
+        {"voltage drive", 2, {VR_R_c, VR_L_0}, {4.17, 1e-4}, 10.0, {"R_c = 4.17 Ohm", "L_0 = 0.0001 H"}}, /* 4.8 us */
+    };
+    for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+        fmi2Component c = make_free_ball(cases[k].what, cases[k].vr, cases[k].val, cases[k].n);
+        last_log[0] = 0;
+        CHECK(fmi2DoStep(c, 0.0, cases[k].h, fmi2True) == fmi2Error, "%s: a %g s step not refused", cases[k].what,
+              cases[k].h);
+        /* white box: the FMI 2.0 instance begins with the MfInstance that holds the plant */
+        long work = ((const MfInstance *)c)->plant.work;
+        CHECK(work == 0, "%s: the refused step spent %ld RK4 evaluations", cases[k].what, work);
+        CHECK(logged("RK4 steps") && logged("over the budget") && logged("shorter communication steps"),
+              "%s: message '%s'", cases[k].what, last_log);
+        for (int j = 0; j < 2 && cases[k].names[j]; j++)
+            CHECK(logged(cases[k].names[j]), "%s: the message does not name %s: '%s'", cases[k].what,
+                  cases[k].names[j], last_log);
+        CHECK(k == 0 || !logged("solver_step"), "%s: the message blames solver_step: '%s'", cases[k].what, last_log);
+        double t = -1;
+        CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 0.0, "%s: time %g", cases[k].what, t);
+        CHECK(fmi2DoStep(c, 0.0, 1e-3, fmi2True) == fmi2OK, "%s: no step after the refused one: %s", cases[k].what,
+              last_log);
+        fmi2FreeInstance(c);
+    }
+    /* a long step within the budget runs, every substep integrated: 40 s of 0.1 ms (the impact on the floor
+     * adds a few evaluations) */
+    const MaglevVR rc = VR_R_c;
+    const double one = 1.0;
+    fmi2Component c = make_free_ball("long", &rc, &one, 1);
+    CHECK(fmi2DoStep(c, 0.0, 40.0, fmi2True) == fmi2OK, "40 s at 0.1 ms substeps: %s", last_log);
+    long work = ((const MfInstance *)c)->plant.work;
+    CHECK(work >= 400000 && work <= MAGLEV_WORK_MAX, "40 s: %ld RK4 evaluations", work);
+    fmi2FreeInstance(c);
+}
+
 int main(void) {
     test_instantiate_arguments();
     test_call_sequence();
@@ -944,6 +1045,7 @@ int main(void) {
     test_issued_guid();
     test_reset_keeps_start_values();
     test_state_holds_experiment();
+    test_budget_decided_before_integrating();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }
