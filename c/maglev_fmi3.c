@@ -142,7 +142,7 @@ fmi3Status fmi3Terminate(fmi3Instance instance) {
 
 fmi3Status fmi3Reset(fmi3Instance instance) {
     GUARD("fmi3Reset", MF_ANY_LIVE);
-    return (fmi3Status)mf_reset(F(instance));
+    return (fmi3Status)mf_reset(F(instance), "fmi3Reset");
 }
 
 /* Every variable is a scalar: nValues must equal nValueReferences. */

@@ -12,6 +12,7 @@
  * the importer left behind, and a foreign or stale pointer is refused instead of followed). */
 struct MfSnapshot {
     MfState state;
+    MfExperiment exp;
     MaglevPlant plant;
     struct MfSnapshot *prev, *next;
 };
@@ -135,7 +136,7 @@ int mf_accepted_guid(const char *dir, char *guid, size_t glen, char *msg, size_t
  * "name value" per line: they replace the C defaults, so that the FMU uses the start values its
  * model description states. No file (the CE152 FMU): the defaults. Returns 0, or -1 with msg. */
 #define START_VALUES_FILE "start_values.txt"
-static int load_start_values(MaglevPlant *m, const char *dir, char *msg, size_t len) {
+static int load_start_values(MaglevPlant *m, const char *dir, int *count, char *msg, size_t len) {
     char path[4096];
     if (!dir) return 0;
     size_t n = strlen(dir);
@@ -181,6 +182,7 @@ static int load_start_values(MaglevPlant *m, const char *dir, char *msg, size_t 
                 rc = -1;
             } else {
                 maglev_set_param(m, (MaglevVR)vr, value);
+                ++*count;
             }
         }
     }
@@ -197,7 +199,8 @@ int mf_init(MfInstance *f, const char *name, int logging, MfLogFn log, const Mag
     f->alloc = *alloc;
     f->time_vr = time_vr;
     maglev_defaults(&f->plant);
-    if (load_start_values(&f->plant, resources_dir, msg, msglen)) return -1;
+    if (load_start_values(&f->plant, resources_dir, &f->n_start_values, msg, msglen)) return -1;
+    memcpy(f->start_params, f->plant.p, sizeof f->start_params);
     f->state = MF_INSTANTIATED;
     return 0;
 }
@@ -217,30 +220,46 @@ void mf_release(MfInstance *f) {
 
 /* ---- modes ---- */
 
+/* An experiment as the standards allow it (the same checks for fmi2SetupExperiment, fmi3EnterInitializationMode
+ * and a deserialized FMU state); 0, or -1 with msg. */
+static int check_experiment(const MfExperiment *e, char *msg, size_t len) {
+    if (e->tol_defined ? !(isfinite(e->tolerance) && e->tolerance > 0) : e->tolerance != 0) {
+        snprintf(msg, len, "tolerance %g must be > 0 and finite%s", e->tolerance,
+                 e->tol_defined ? "" : " (or 0 when undefined)");
+        return -1;
+    }
+    if (!(fabs(e->start_time) <= MAGLEV_TIME_MAX)) {
+        snprintf(msg, len, "startTime %g must be finite and within +-%g s", e->start_time, MAGLEV_TIME_MAX);
+        return -1;
+    }
+    if (e->stop_defined ? !(e->stop_time >= e->start_time && e->stop_time <= MAGLEV_TIME_MAX) : e->stop_time != 0) {
+        snprintf(msg, len, "stopTime %g must be >= startTime %g and <= %g s%s", e->stop_time, e->start_time,
+                 MAGLEV_TIME_MAX, e->stop_defined ? "" : " (or 0 when undefined)");
+        return -1;
+    }
+    return 0;
+}
+
 int mf_setup_experiment(MfInstance *f, const char *fn, int tol_defined, double tol, double start, int stop_defined,
                         double stop) {
-    if (tol_defined && (!isfinite(tol) || tol <= 0))
-        return mf_error(f, "%s: tolerance %g must be > 0 and finite", fn, tol);
-    if (!(fabs(start) <= MAGLEV_TIME_MAX))
-        return mf_error(f, "%s: startTime %g must be finite and within +-%g s", fn, start, MAGLEV_TIME_MAX);
-    if (stop_defined && !(stop >= start && stop <= MAGLEV_TIME_MAX))
-        return mf_error(f, "%s: stopTime %g must be >= startTime %g and <= %g s", fn, stop, start, MAGLEV_TIME_MAX);
-    f->start_time = start;
-    f->stop_defined = stop_defined ? 1 : 0;
-    f->stop_time = stop;
+    char msg[MAGLEV_MSG_LEN];
+    MfExperiment e = {start, stop_defined ? stop : 0.0, tol_defined ? tol : 0.0, stop_defined ? 1 : 0,
+                      tol_defined ? 1 : 0};
+    if (check_experiment(&e, msg, sizeof msg)) return mf_error(f, "%s: %s", fn, msg);
+    f->exp = e;
     f->plant.time = start;
     return MF_OK;
 }
 
 int mf_enter_initialization(MfInstance *f) {
-    f->plant.time = f->start_time;
+    f->plant.time = f->exp.start_time;
     f->state = MF_INITIALIZATION_MODE;
     return MF_OK;
 }
 
 int mf_exit_initialization(MfInstance *f, const char *fn) {
     char msg[MAGLEV_MSG_LEN];
-    if (maglev_initialize(&f->plant, f->start_time, f->plant.u, &f->alloc, msg, sizeof msg))
+    if (maglev_initialize(&f->plant, f->exp.start_time, f->plant.u, &f->alloc, msg, sizeof msg))
         return mf_error(f, "%s: %s", fn, msg);
     f->state = MF_STEP_COMPLETE;
     return MF_OK;
@@ -251,12 +270,17 @@ int mf_terminate(MfInstance *f) {
     return MF_OK;
 }
 
-int mf_reset(MfInstance *f) {
+int mf_reset(MfInstance *f, const char *fn) {
     maglev_release(&f->plant, &f->alloc);
     maglev_defaults(&f->plant);
-    f->start_time = 0;
-    f->stop_time = 0;
-    f->stop_defined = 0;
+    /* the start values of instantiation, not the C defaults: a rig's or calibrated FMU's parameters */
+    memcpy(f->plant.p, f->start_params, sizeof f->start_params);
+    if (f->n_start_values > 0)
+        mf_log(f, MF_OK, "logCalls", "%s: back to the state after instantiation, with the %d start values of "
+               "resources/start_values.txt", fn, f->n_start_values);
+    else
+        mf_log(f, MF_OK, "logCalls", "%s: back to the state after instantiation", fn);
+    memset(&f->exp, 0, sizeof f->exp);
     f->state = MF_INSTANTIATED;
     return MF_OK;
 }
@@ -291,7 +315,7 @@ int mf_get_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t n
     if (f->state == MF_INITIALIZATION_MODE) {
         for (size_t k = 0; k < nvr; k++) {
             if (is_time(f, vr[k]) || maglev_variables[vr[k]].causality != MAGLEV_OUTPUT) continue;
-            if (maglev_preview(&f->plant, f->start_time, &view, msg, sizeof msg))
+            if (maglev_preview(&f->plant, f->exp.start_time, &view, msg, sizeof msg))
                 return mf_error(f, "%s: output %s is undefined until the parameters agree: %s", fn,
                                 maglev_variables[vr[k]].name, msg);
             p = &view;
@@ -360,8 +384,8 @@ int mf_do_step(MfInstance *f, const char *fn, double t_importer, double h) {
         return mf_error(f, "%s: communicationStepSize %g must be > 0 and finite", fn, h);
     if (fabs(t_importer - t) > 1e-9 * (1.0 + fabs(t)))
         return mf_error(f, "%s: currentCommunicationPoint %.17g does not match the FMU time %.17g", fn, t_importer, t);
-    if (f->stop_defined && t_importer + h > f->stop_time * (1 + 1e-12) + 1e-12)
-        return mf_error(f, "%s: step to %.17g goes past stopTime %.17g", fn, t_importer + h, f->stop_time);
+    if (f->exp.stop_defined && t_importer + h > f->exp.stop_time * (1 + 1e-12) + 1e-12)
+        return mf_error(f, "%s: step to %.17g goes past stopTime %.17g", fn, t_importer + h, f->exp.stop_time);
     /* the importer's time is the reference: absorb rounding between its clock and ours (for a step
      * taken; a refused step leaves the time as it was, which may be the only one in range) */
     f->plant.time = t_importer;
@@ -412,6 +436,7 @@ int mf_get_state(MfInstance *f, const char *fn, void **state) {
     }
     s->plant = copy;
     s->state = f->state;
+    s->exp = f->exp;
     *state = s;
     return MF_OK;
 }
@@ -425,6 +450,7 @@ int mf_set_state(MfInstance *f, const char *fn, void *state) {
     maglev_release(&f->plant, &f->alloc);
     f->plant = copy;
     f->state = s->state;
+    f->exp = s->exp;
     return MF_OK;
 }
 
@@ -444,7 +470,11 @@ static int state_code(MfState s) {
     return -1;
 }
 
-/* Serialised form: the plant image, with the FMU state's code as its checksummed tag. */
+/* Serialised form: the plant image (maglev_plant.c), with the FMU state's code and its experiment in the
+ * image's tag, under its checksum: flags bit 0 stopTime defined, bit 1 tolerance defined; values startTime,
+ * stopTime, tolerance. */
+enum { EXP_STOP_DEFINED = 1u, EXP_TOL_DEFINED = 2u };
+
 int mf_serialized_size(MfInstance *f, const char *fn, void *state, size_t *size) {
     if (!state || !size) return mf_error(f, "%s: FMU state or size is NULL", fn);
     const MfSnapshot *s = owned(f, fn, state);
@@ -459,7 +489,10 @@ int mf_serialize(MfInstance *f, const char *fn, void *state, unsigned char *buf,
     if (!s) return MF_ERROR;
     size_t need = maglev_serialized_size(&s->plant);
     if (size < need) return mf_error(f, "%s: buffer of %zu bytes, %zu needed", fn, size, need);
-    maglev_serialize(&s->plant, (unsigned int)state_code(s->state), buf);
+    MaglevTag tag = {(unsigned int)state_code(s->state),
+                     (s->exp.stop_defined ? EXP_STOP_DEFINED : 0u) | (s->exp.tol_defined ? EXP_TOL_DEFINED : 0u),
+                     {s->exp.start_time, s->exp.stop_time, s->exp.tolerance}};
+    maglev_serialize(&s->plant, &tag, buf);
     return MF_OK;
 }
 
@@ -468,16 +501,29 @@ int mf_deserialize(MfInstance *f, const char *fn, const unsigned char *buf, size
     if (!buf || !state) return mf_error(f, "%s: NULL buffer or FMU state pointer", fn);
     if (*state && !owned(f, fn, *state)) return MF_ERROR;
     MaglevPlant p;
-    unsigned int code;
+    MaglevTag tag;
     memset(&p, 0, sizeof p);
-    if (maglev_deserialize(&p, &code, buf, size, &f->alloc, msg, sizeof msg)) return mf_error(f, "%s: %s", fn, msg);
+    if (maglev_deserialize(&p, &tag, buf, size, &f->alloc, msg, sizeof msg)) return mf_error(f, "%s: %s", fn, msg);
     /* the state machine's state must be one the plant can be in */
+    unsigned int code = tag.code;
     MfState st = code >= 1 && code <= 6 ? (MfState)(1 << code) : MF_START_AND_END;
     int needs_init = st & (MF_STEP_COMPLETE | MF_STEP_FAILED | MF_TERMINATED);
     int needs_fresh = st & (MF_INSTANTIATED | MF_INITIALIZATION_MODE);
     if (st == MF_START_AND_END || (needs_init && !p.initialized) || (needs_fresh && p.initialized)) {
         maglev_release(&p, &f->alloc);
         return mf_error(f, "%s: FMU state code %u does not fit the plant's state", fn, code);
+    }
+    /* an experiment SetupExperiment would accept; before initialisation ends the plant's time is its start */
+    MfExperiment e = {tag.value[0], tag.value[1], tag.value[2], (tag.flags & EXP_STOP_DEFINED) != 0,
+                      (tag.flags & EXP_TOL_DEFINED) != 0};
+    msg[0] = 0; /* check_experiment writes it only when it refuses */
+    if (tag.flags & ~(unsigned int)(EXP_STOP_DEFINED | EXP_TOL_DEFINED))
+        snprintf(msg, sizeof msg, "unknown experiment flags 0x%x", tag.flags);
+    else if (check_experiment(&e, msg, sizeof msg) == 0 && needs_fresh && p.time != e.start_time)
+        snprintf(msg, sizeof msg, "time %g before initialization differs from startTime %g", p.time, e.start_time);
+    if (msg[0]) {
+        maglev_release(&p, &f->alloc);
+        return mf_error(f, "%s: serialized state holds an experiment the FMU cannot have: %s", fn, msg);
     }
     MfSnapshot *s = *state;
     if (s) {
@@ -488,6 +534,7 @@ int mf_deserialize(MfInstance *f, const char *fn, const unsigned char *buf, size
     }
     s->plant = p;
     s->state = st;
+    s->exp = e;
     *state = s;
     return MF_OK;
 }

@@ -38,16 +38,27 @@ typedef void (*MfLogFn)(const struct MfInstance *f, int status, const char *cate
 
 typedef struct MfSnapshot MfSnapshot;
 
+/* The experiment fmi2SetupExperiment (FMI 2.0) or fmi3EnterInitializationMode (FMI 3.0) gave. It is part of
+ * an FMU state, so that a state restored after a reset, or in another instance, starts and stops where it
+ * did. What is not defined is 0, so that the same experiment always serializes to the same bytes. */
+typedef struct {
+    double start_time, stop_time, tolerance;
+    int stop_defined, tol_defined;
+} MfExperiment;
+
 typedef struct MfInstance {
     char name[128];
     MfLogFn log;
     int logging;
     MfState state;
-    double start_time, stop_time;
-    int stop_defined;
+    MfExperiment exp;
     unsigned int time_vr;        /* value reference of the independent variable time (FMI 3.0), or MF_NO_TIME_VR */
     MaglevAllocator alloc;
     MaglevPlant plant;
+    /* The parameters right after instantiation (the defaults, then resources/start_values.txt): a reset
+     * goes back to them without reading the file again, which the importer may have removed since. */
+    double start_params[MAGLEV_NPARAMS];
+    int n_start_values;          /* how many of them came from start_values.txt */
     MfSnapshot *snapshots;
 } MfInstance;
 
@@ -83,7 +94,9 @@ int mf_setup_experiment(MfInstance *f, const char *fn, int tol_defined, double t
 int mf_enter_initialization(MfInstance *f);
 int mf_exit_initialization(MfInstance *f, const char *fn);
 int mf_terminate(MfInstance *f);
-int mf_reset(MfInstance *f);
+/* Back to the state right after instantiation (FMI 2.0 fmi2Reset, FMI 3.0 fmi3Reset): the start values
+ * the instance was made with, no experiment, the state machine in instantiated. */
+int mf_reset(MfInstance *f, const char *fn);
 
 int mf_get_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t nvr, double value[]);
 int mf_set_real(MfInstance *f, const char *fn, const unsigned int vr[], size_t nvr, const double value[]);

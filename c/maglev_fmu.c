@@ -134,7 +134,7 @@ fmi2Status fmi2Terminate(fmi2Component c) {
 
 fmi2Status fmi2Reset(fmi2Component c) {
     GUARD("fmi2Reset", MF_ANY_LIVE);
-    return (fmi2Status)mf_reset(F(c));
+    return (fmi2Status)mf_reset(F(c), "fmi2Reset");
 }
 
 fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {

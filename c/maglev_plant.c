@@ -600,18 +600,54 @@ COLD void transient_impulse(const MaglevPlant *m, const Piece *pc, Mech *s, int 
     if (!contact) s->v += g / P(m, m_k) * (I - J);
 }
 
+/* What sets the length of the RK4 substeps: a step refused for its work budget names it, since a shorter
+ * solver_step does not help where one of the others sets it. */
+typedef enum { BY_SOLVER_STEP, BY_FORCE_LAG, BY_FRICTION, BY_VOLTAGE_DRIVE, BY_AMPLIFIER_LAG, BY_COUNT } SetBy;
+
+/* The longest substep the parameters allow, and what sets it. */
+static double substep_max(const MaglevPlant *m, SetBy *by) {
+    double h = P(m, solver_step);
+    *by = BY_SOLVER_STEP;
+    /* ETDRK4 is stable at any T_F, but where T_F << h its force stages trail the static force by
+     * about h/2 (3e-4 MU at T_F = 1 us, h = 0.25 ms); h <= 2*T_F keeps that below 1e-5 MU */
+    if (P(m, T_F) > 0 && 2 * P(m, T_F) < h) {
+        h = 2 * P(m, T_F);
+        *by = BY_FORCE_LAG;
+    }
+    /* the smoothed friction's slope F_c/(m_k*v_c) is a fast rate near v = 0: keep RK4's h*rate <= 0.1 */
+    if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c) < h) {
+        h = 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c);
+        *by = BY_FRICTION;
+    }
+    if (voltage_drive(m)) { /* RK4 on the coil equation: keep h below a fifth of its smallest time constant */
+        double tau_e = (P(m, L_0) - P(m, L_i) * PI / 2) / P(m, R_c);
+        if (tau_e / 5 < h) {
+            h = tau_e / 5;
+            *by = BY_VOLTAGE_DRIVE;
+        }
+    }
+    return h;
+}
+
+/* A dry run's count of the substeps a step will take at most: maglev_step decides on it before it
+ * integrates anything. */
+typedef struct {
+    double substeps[BY_COUNT]; /* by what sets their length; doubles: a count beyond any integer type is refused */
+    size_t pieces;
+    int known;                 /* the mechanics are still known: every piece so far left the ball at rest */
+} Plan;
+
 /* Integrates [t0, t0 + len) with a constant delayed input, in parts of equal substeps (at most
- * solver_step). Returns -1 when the work budget runs out. */
-static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work) {
+ * substep_max). With plan, a dry run: a ball that rests on a stop throughout is moved on as the step
+ * would (no substep needed); otherwise the piece's substeps are counted, the current is moved on (it
+ * has a closed form, and the next piece's substeps depend on it) and the mechanics become unknown.
+ * Returns -1 when the evaluations at impacts exceed MAGLEV_WORK_MAX (never in a dry run). */
+static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work, Plan *plan) {
     enum { MAX_PARTS = 12 };
     Piece pc = make_piece(m, m->i, current_command(m, u_eff), coil_volts(m, u_eff), work);
     Mech s = {m->x, m->v, m->F, m->i};
-    double hmax = P(m, solver_step);
-    /* ETDRK4 is stable at any T_F, but where T_F << h its force stages trail the static force by
-     * about h/2 (3e-4 MU at T_F = 1 us, h = 0.25 ms); h <= 2*T_F keeps that below 1e-5 MU */
-    if (P(m, T_F) > 0 && 2 * P(m, T_F) < hmax) hmax = 2 * P(m, T_F);
-    /* the smoothed friction's slope F_c/(m_k*v_c) is a fast rate near v = 0: keep RK4's h*rate <= 0.1 */
-    if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c) < hmax) hmax = 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c);
+    SetBy by;
+    double hmax = substep_max(m, &by);
     double bounds[MAX_PARTS], hs[MAX_PARTS], tau = 0.0, di = fabs(pc.i0 - pc.ic), i_start = pc.i0;
     int nparts = 0;
     if (!pc.voltage && P(m, T_a) > 0 && P(m, T_F) > 0 && di > TRANSIENT_EPS &&
@@ -621,14 +657,11 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
         pc.i0 = pc.ic;
         di = 0.0;
     }
-    if (pc.voltage) { /* RK4 on the coil equation: keep h below a fifth of its smallest time constant */
-        double tau_e = (P(m, L_0) - P(m, L_i) * PI / 2) / P(m, R_c);
-        if (tau_e / 5 < hmax) hmax = tau_e / 5;
-    } else if (!pc.exact && P(m, T_a) > 0 && di > TRANSIENT_EPS) {
+    if (!pc.voltage && !pc.exact && P(m, T_a) > 0 && di > TRANSIENT_EPS) {
         /* ETDRK4 (a force lag) sees the current's transient d*e^(-t/T_a) as a fast forcing term,
          * with an error per substep of about its size times (h/T_a)^4: the substeps start at
          * T_a/8 (the 1 kHz closed loop then agrees with the solve_ivp reference to 1e-8 MU) and
-         * double each time it has shrunk 16-fold, until it is below 1 uA or they reach solver_step */
+         * double each time it has shrunk 16-fold, until it is below 1 uA or they reach hmax */
         double T = P(m, T_a), t_fine = fmin(T * log(di / TRANSIENT_EPS), len), h = T / 8, t = 0.0;
         while (h < hmax && t < t_fine && nparts < MAX_PARTS - 1) {
             t = fmin(t + 4 * 0.69314718055994531 * T, t_fine);
@@ -639,19 +672,30 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
     }
     bounds[nparts] = len;
     hs[nparts++] = hmax;
+    /* each part's substeps: the fewest of equal length at most hs[part] */
+    double nd[MAX_PARTS], from = 0.0;
+    for (int part = 0; part < nparts; part++) {
+        double span = bounds[part] - from;
+        nd[part] = span > 0 ? fmax(1.0, ceil(span / hs[part] - 1e-9)) : 0.0;
+        if (span > 0) from = bounds[part];
+    }
+    /* the current at the piece's end, where it has a closed form; clipped against rounding past the ends */
+    const double i_end = pc.voltage ? 0.0 : clip(current_at(m, i_start, pc.ic, len), 0.0, P(m, i_max));
+    /* A dry run stops at the first substep (below): where the ball cannot rest from the start, that is
+     * known here, without the parts' weights. The same test as stays_on_stop's first line. */
+    int counted = plan && !(plan->known && m->contact && s.v == 0.0 && !pc.voltage);
     double d = pc.i0 - pc.ic;
     int resting = 0;
     const double Ty = P(m, T_y);
     double xs = m->xs;
-    for (int part = 0; part < nparts && !resting; part++) {
+    for (int part = 0; part < nparts && !resting && !counted; part++) {
         double span = bounds[part] - tau;
         if (span <= 0) continue;
-        /* A span beyond the budget is integrated at the nominal substep while the budget lasts:
-         * it still passes if the ball comes to rest on a stop on the way. */
-        double nd = ceil(span / hs[part] - 1e-9), left = (double)(MAGLEV_STEP_BUDGET - *work);
-        int over = !(nd <= left); /* compared as doubles: no cast of a huge count */
-        long n = over ? (long)left : (nd < 1 ? 1 : (long)nd);
-        double h = over ? hs[part] : span / (double)n;
+        /* A part of more substeps than the budget (no cast of such a count) passed maglev_step's count
+         * only with a ball resting from its first substep on: the loop ends there. */
+        int over = !(nd[part] <= MAGLEV_STEP_BUDGET);
+        long n = over ? 1 : (long)nd[part];
+        double h = over ? hs[part] : span / nd[part];
         /* the current's exponential by recurrence: e^(-(k+1)h/T) = e^(-kh/T) * q */
         double E = 1.0, q = 0.0, qh = 0.0;
         double ws[5] = {0};
@@ -665,7 +709,7 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
             q = tw ? tw->q : exp(-h / P(m, T_a));
             qh = tw ? 0.0 : exp(-h / (2 * P(m, T_a)));
         }
-        for (long k = 0; over || k < n; k++) {
+        for (long k = 0; k < n; k++) {
             double i_now = P(m, T_a) > 0 ? pc.ic + d * E : pc.ic, sq[3];
             if (tw) {
                 transient_squares(&pc, tw, d * E, sq);
@@ -680,7 +724,11 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
                 resting = 1;
                 break;
             }
-            if (k >= n || *work >= MAGLEV_STEP_BUDGET) return -1;
+            if (plan) { /* the piece needs substeps: all of them count */
+                counted = 1;
+                break;
+            }
+            if (over || *work >= MAGLEV_WORK_MAX) return -1; /* over: never, maglev_step counted the substeps */
             double xa = s.x, va = s.v;
             substep(&pc, tau + k * h, &s, &m->contact, h, sq);
             if (Ty > 0) { /* x over the substep as the cubic through its ends' positions and velocities */
@@ -694,6 +742,14 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
         }
         if (!resting) tau = bounds[part];
     }
+    if (plan) plan->pieces++;
+    if (counted) {
+        for (int part = 0; part < nparts; part++) /* the parts before the last are the transient's (T_a) */
+            plan->substeps[part < nparts - 1 ? BY_AMPLIFIER_LAG : by] += nd[part];
+        plan->known = 0;
+        if (!pc.voltage) m->i = i_end;
+        return 0;
+    }
     if (resting && P(m, T_F) > 0) { /* the lag relaxes towards a constant static force */
         double Fs = static_force(m, pc.ic, s.x);
         s.F = Fs + (s.F - Fs) * exp(-(len - tau) / P(m, T_F));
@@ -703,7 +759,7 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work)
     m->xs = Ty > 0 ? xs : s.x;
     m->v = s.v;
     m->F = P(m, T_F) > 0 ? s.F : 0.0;
-    m->i = pc.voltage ? s.i : clip(current_at(m, i_start, pc.ic, len), 0.0, P(m, i_max)); /* against rounding past the ends */
+    m->i = pc.voltage ? s.i : i_end;
     return 0;
 }
 
@@ -846,44 +902,110 @@ int maglev_initialize(MaglevPlant *m, double t0, double u0, const MaglevAllocato
     return 0;
 }
 
+/* The step from m->time to t_end in pieces: the delayed input is constant between the instants it
+ * changes, and each piece is integrated with it held (integrate_piece, plan: a dry run). */
+static int step_pieces(MaglevPlant *m, double t_end, long *work, Plan *plan) {
+    if (P(m, T_a) <= 0 && !voltage_drive(m)) m->i = current_command(m, delayed_input(m, m->time));
+    size_t from = 0; /* where the history scan resumes: the pieces' starts only grow */
+    while (m->time < t_end) {
+        double next = t_end;
+        if (P(m, T_d) > 0) { /* the next instant the delayed input changes */
+            const MaglevHistory *hs = &m->hist;
+            for (size_t k = from; k < hs->len; k++) {
+                double tc = hs->t[k] + P(m, T_d);
+                if (tc > m->time + TIME_EPS) {
+                    if (tc < next - TIME_EPS) next = tc;
+                    from = k;
+                    break;
+                }
+            }
+        }
+        if (integrate_piece(m, next - m->time, delayed_input(m, 0.5 * (m->time + next)), work, plan)) return -1;
+        m->time = next;
+    }
+    return 0;
+}
+
+/* The message of a step refused for its work budget: how many substeps, and what sets their length. */
+static void budget_message(const MaglevPlant *m, double h, const Plan *plan, char *msg, size_t len) {
+    double total = 0.0;
+    int top = 0;
+    for (int k = 0; k < BY_COUNT; k++) {
+        total += plan->substeps[k];
+        if (plan->substeps[k] > plan->substeps[top]) top = k;
+    }
+    SetBy by;
+    double hmax = substep_max(m, &by);
+    char what[160], pieces[48] = "";
+    switch ((SetBy)top) {
+    case BY_FORCE_LAG:
+        snprintf(what, sizeof what, "the force lag T_F = %g s sets their length to 2*T_F", P(m, T_F));
+        break;
+    case BY_FRICTION:
+        snprintf(what, sizeof what, "the friction F_c = %g N sets their length to 0.1*m_k*v_c/F_c = %g s (m_k = %g kg, "
+                 "v_c = 0.1 mm/s)", P(m, F_c), hmax, P(m, m_k));
+        break;
+    case BY_VOLTAGE_DRIVE:
+        snprintf(what, sizeof what, "the voltage drive (R_c = %g Ohm, L_0 = %g H, L_i = %g H) sets their length to "
+                 "(L_0 - L_i*pi/2)/R_c/5 = %g s", P(m, R_c), P(m, L_0), P(m, L_i), hmax);
+        break;
+    case BY_AMPLIFIER_LAG:
+        snprintf(what, sizeof what, "the amplifier lag T_a = %g s under the force lag T_F sets their length to T_a/8 "
+                 "at first", P(m, T_a));
+        break;
+    default: snprintf(what, sizeof what, "solver_step = %g s sets their length", P(m, solver_step)); break;
+    }
+    if (plan->pieces > 1) snprintf(pieces, sizeof pieces, " in %zu pieces (the delay T_d)", plan->pieces);
+    fail(msg, len, "a step of %g s needs %.3g RK4 steps%s, over the budget of %ld: %s; take shorter communication "
+         "steps", h, total, pieces, MAGLEV_STEP_BUDGET, what);
+}
+
 int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, size_t len) {
     (void)a;
+    m->work = 0;
     if (!(h > 0) || !isfinite(h)) return fail(msg, len, "communication step size %g must be > 0 and finite", h);
     double t_end = m->time + h;
     if (!(fabs(t_end) <= MAGLEV_TIME_MAX)) {
         fail(msg, len, "a step to t = %g s leaves the time range +-%g s", t_end, MAGLEV_TIME_MAX);
         return MAGLEV_REFUSED;
     }
-    /* a failed step leaves the plant as it was (the history is not touched by stepping) */
-    MaglevPlant before = *m;
     long work = 0;
-    if (P(m, T_a) <= 0 && !voltage_drive(m)) m->i = current_command(m, delayed_input(m, m->time));
-    while (m->time < t_end) {
-        double next = t_end;
-        if (P(m, T_d) > 0) { /* the next instant the delayed input changes */
-            const MaglevHistory *hs = &m->hist;
-            for (size_t k = 0; k < hs->len; k++) {
-                double tc = hs->t[k] + P(m, T_d);
-                if (tc > m->time + TIME_EPS) {
-                    if (tc < next - TIME_EPS) next = tc;
-                    break;
-                }
-            }
-        }
-        if (integrate_piece(m, next - m->time, delayed_input(m, 0.5 * (m->time + next)), &work)) {
-            *m = before;
-            fail(msg, len, "a step of %g s needs more than %ld RK4 steps (solver_step = %g s%s); "
-                        "take shorter communication steps", h, MAGLEV_STEP_BUDGET, P(m, solver_step),
-                        P(m, T_F) > 0 ? ", force lag T_F" : "");
+    /* The work budget is decided before integrating, so that a step it refuses costs nothing. A piece
+     * takes at most len/hmax + 1 substeps, and at most 57 more while an amplifier transient lasts under a
+     * force lag (integrate_piece): where that bound fits the budget, as at every ordinary step, the count
+     * is not needed. Otherwise a dry run on a copy counts them (the copy shares the delay history, which
+     * stepping only reads). */
+    SetBy by;
+    double pieces_max = P(m, T_d) > 0 ? (double)m->hist.len + 1.0 : 1.0;
+    if (!(h / substep_max(m, &by) + 64.0 * pieces_max <= MAGLEV_STEP_BUDGET)) {
+        Plan plan;
+        memset(&plan, 0, sizeof plan);
+        plan.known = 1;
+        MaglevPlant dry = *m;
+        step_pieces(&dry, t_end, &work, &plan);
+        double total = 0.0;
+        for (int k = 0; k < BY_COUNT; k++) total += plan.substeps[k];
+        if (!(total <= MAGLEV_STEP_BUDGET)) {
+            budget_message(m, h, &plan, msg, len);
             return MAGLEV_REFUSED;
         }
-        m->time = next;
     }
+    /* a failed step leaves the plant as it was (the history is not touched by stepping) */
+    MaglevPlant before = *m;
+    if (step_pieces(m, t_end, &work, NULL)) {
+        *m = before;
+        m->work = work;
+        fail(msg, len, "a step of %g s needs more than %ld RK4 evaluations, most of them finding impacts at the "
+             "stops; take shorter communication steps", h, MAGLEV_WORK_MAX);
+        return MAGLEV_REFUSED;
+    }
+    m->work = work;
     m->time = t_end;
     if (P(m, T_a) <= 0 && !voltage_drive(m)) m->i = current_command(m, delayed_input(m, m->time));
     if (!isfinite(m->x) || !isfinite(m->xs) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F)) {
         double x = m->x, v = m->v, i = m->i;
         *m = before;
+        m->work = work;
         return fail(msg, len, "state became non-finite at t = %g (x = %g, v = %g, i = %g); the state before "
                     "the step is kept", t_end, x, v, i);
     }
@@ -935,16 +1057,18 @@ int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator 
     return 0;
 }
 
-/* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, u32 tag, i32 initialized, doubles
- * (params, time, u, x, v, i, F, xs), i32 contact, hist pairs, u64 FNV-1a of all before. */
+/* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, u32 tag code, i32 initialized, doubles
+ * (params, time, u, x, v, i, F, xs, the tag's values), i32 contact, u32 tag flags, hist pairs, u64 FNV-1a
+ * of all before. Version 4 added the tag's values and flags (the FMU's experiment): an image of version 3
+ * lacks them, and is refused by its version rather than misread. */
 #define SER_MAGIC "MGLV"
-#define SER_VERSION 3u
+#define SER_VERSION 4u
 #define SER_NSTATE 7
 
 static size_t ser_header(void) { return 4 + 4 + 4 + 8 + 4 + 4; }
 
 size_t maglev_serialized_size(const MaglevPlant *m) {
-    return ser_header() + (MAGLEV_NPARAMS + SER_NSTATE) * 8 + 4 + m->hist.len * 16 + 8;
+    return ser_header() + (MAGLEV_NPARAMS + SER_NSTATE + MAGLEV_TAG_NVALUES) * 8 + 4 + 4 + m->hist.len * 16 + 8;
 }
 
 static unsigned long long fnv1a(const unsigned char *b, size_t n) {
@@ -966,7 +1090,7 @@ static const unsigned char *get(const unsigned char *b, void *v, size_t n) {
     return b + n;
 }
 
-void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf) {
+void maglev_serialize(const MaglevPlant *m, const MaglevTag *tag, unsigned char *buf) {
     unsigned char *b = buf;
     unsigned int version = SER_VERSION, np = MAGLEV_NPARAMS;
     unsigned long long hl = m->hist.len;
@@ -976,11 +1100,13 @@ void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf
     b = put(b, &version, 4);
     b = put(b, &np, 4);
     b = put(b, &hl, 8);
-    b = put(b, &tag, 4);
+    b = put(b, &tag->code, 4);
     b = put(b, &initialized, 4);
     b = put(b, m->p, sizeof m->p);
     b = put(b, st, sizeof st);
+    b = put(b, tag->value, sizeof tag->value);
     b = put(b, &contact, 4);
+    b = put(b, &tag->flags, 4);
     for (size_t k = 0; k < m->hist.len; k++) {
         b = put(b, &m->hist.t[k], 8);
         b = put(b, &m->hist.u[k], 8);
@@ -989,11 +1115,12 @@ void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf
     put(b, &sum, 8);
 }
 
-int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *buf, size_t size,
+int maglev_deserialize(MaglevPlant *m, MaglevTag *tag, const unsigned char *buf, size_t size,
                        const MaglevAllocator *a, char *msg, size_t len) {
     if (!buf) return fail(msg, len, "serialized state is NULL");
     if (size < ser_header() + 8) return fail(msg, len, "serialized state too short (%zu bytes)", size);
     unsigned int version, np, tg;
+    MaglevTag tg_read;
     unsigned long long hl, sum;
     int initialized;
     const unsigned char *b = buf;
@@ -1017,7 +1144,10 @@ int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *b
     double st[SER_NSTATE];
     b = get(b, tmp.p, sizeof tmp.p);
     b = get(b, st, sizeof st);
+    b = get(b, tg_read.value, sizeof tg_read.value);
     b = get(b, &tmp.contact, 4);
+    b = get(b, &tg_read.flags, 4);
+    tg_read.code = tg;
     tmp.time = st[0]; tmp.u = st[1]; tmp.x = st[2]; tmp.v = st[3]; tmp.i = st[4]; tmp.F = st[5]; tmp.xs = st[6];
     tmp.initialized = initialized;
     tmp.hist.len = 0;
@@ -1041,6 +1171,6 @@ int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *b
     }
     maglev_release(m, a);
     *m = tmp;
-    *tag = tg;
+    *tag = tg_read;
     return 0;
 }

@@ -93,9 +93,21 @@ typedef struct {
  * about a tenth, and every phase 2*pi*f_d*t stays finite. */
 #define MAGLEV_TIME_MAX 1e9
 
-/* Most RK4 evaluations one maglev_step may spend (0.03 s of CPU at -O2); a step that would need
- * more is refused with the plant unchanged, so no call can hang its caller. */
+/* Most RK4 substeps one maglev_step may take. It counts them before integrating, from the substep
+ * length the parameters set (solver_step, or shorter: the force lag T_F, the friction F_c, a voltage
+ * drive's electrical time constant, an amplifier transient under a force lag), and refuses a step that
+ * needs more at once, with the plant unchanged, naming what sets the length. A ball at rest on a stop
+ * needs none, so any step passes there; a ball that would only come to rest during the step is counted
+ * in full (that cannot be known before integrating). 500000 substeps cost 0.03 s of CPU at -O2 with the
+ * paper's equations, 0.07-0.12 s with friction, a voltage drive or every effect on, 0.16 s in the
+ * costliest case the fuzz met (a voltage drive at R_c = 1e4 Ohm decaying through denormal currents, with
+ * the exponential law, sensor deviation and pickup, a delay); measured 2026-11-25 on the x86-64 build
+ * machine, about 3x that under ASan. */
 #define MAGLEV_STEP_BUDGET 500000L
+/* Most RK4 evaluations a step may spend in all: its substeps and the root finding at impacts on the
+ * stops, which cannot be counted beforehand. A step that reaches it (a ball chattering on a stop) is
+ * refused after the work, with the plant unchanged, so that no call can hang its caller. */
+#define MAGLEV_WORK_MAX (2 * MAGLEV_STEP_BUDGET)
 
 /* The force lag's ETDRK4 weights for one substep h at one T_F (maglev_plant.c): derived data,
  * cached for the two substep lengths used last (a delay splits each step into two pieces). */
@@ -118,6 +130,8 @@ typedef struct {
     int etd_next;               /* the slot the next new weights replace */
     MaglevTransient tr[2];      /* a cache like etd, for the current's transient */
     int tr_next;
+    long work;                  /* RK4 evaluations the last maglev_step spent: a statistic, not state (0 for a
+                                   step refused before integrating; not serialized) */
 } MaglevPlant;
 
 /* Allocation hooks, so the FMU can use the importer's allocator. */
@@ -161,8 +175,9 @@ int maglev_preview(const MaglevPlant *m, double t0, MaglevPlant *view, char *msg
 int maglev_set_input(MaglevPlant *m, double u, const MaglevAllocator *a, char *msg, size_t msglen);
 
 /* Advances by h > 0 seconds. Returns 0; or, with a message and the plant as it was,
- * MAGLEV_REFUSED for a step too long for the work budget or the time range (shorter steps
- * will do), -1 for a state that became non-finite. */
+ * MAGLEV_REFUSED for a step too long for the work budget (decided before integrating,
+ * MAGLEV_STEP_BUDGET) or the time range (shorter steps will do), -1 for a state that became
+ * non-finite. */
 #define MAGLEV_REFUSED (-2)
 int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, size_t msglen);
 
@@ -187,12 +202,22 @@ double maglev_input_for_current(const MaglevPlant *m, double i);
 int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a);
 void maglev_release(MaglevPlant *m, const MaglevAllocator *a);
 
+/* What a caller keeps in a plant's byte image, under the image's version and checksum, uninterpreted by
+ * the plant: the FMU stores its state machine's state in code and its experiment in flags and value
+ * (maglev_fmi_common.c). Its checks are the caller's. */
+#define MAGLEV_TAG_NVALUES 3
+typedef struct {
+    unsigned int code;
+    unsigned int flags;
+    double value[MAGLEV_TAG_NVALUES];
+} MaglevTag;
+
 /* Serialisation: a versioned, checksummed byte image of the whole plant, with a caller's tag
- * (the FMU stores its state-machine state there) under the same checksum. Deserialisation
- * checks the values with maglev_check_plant: a checksum only catches accidents. */
+ * under the same checksum. Deserialisation checks the values with maglev_check_plant: a checksum
+ * only catches accidents. */
 size_t maglev_serialized_size(const MaglevPlant *m);
-void maglev_serialize(const MaglevPlant *m, unsigned int tag, unsigned char *buf);
-int maglev_deserialize(MaglevPlant *m, unsigned int *tag, const unsigned char *buf, size_t size,
+void maglev_serialize(const MaglevPlant *m, const MaglevTag *tag, unsigned char *buf);
+int maglev_deserialize(MaglevPlant *m, MaglevTag *tag, const unsigned char *buf, size_t size,
                        const MaglevAllocator *a, char *msg, size_t msglen);
 
 /* malloc/free allocator for users outside an FMU (tests, the fast path). */

@@ -88,13 +88,16 @@ static int st_index(fmi2Status st) { return (int)st >= 0 && (int)st <= 5 ? (int)
 
 typedef struct {
     unsigned phases;           /* possible states; 0: no instance */
-    double start;              /* startTime the instance holds (fmi2SetupExperiment) */
+    double start;              /* startTime the instance holds (fmi2SetupExperiment, or an FMU state set) */
+    int start_known;           /* 0 after setting a state deserialized from a corrupted buffer */
     int t_known;
     double t;                  /* the FMU's time, as the calls so far determine it */
     int hvalid[MAXH];          /* FMU states held, their states and times */
     unsigned hph[MAXH];
     int ht_known[MAXH];
     double ht[MAXH];
+    int hstart_known[MAXH];    /* an FMU state holds the experiment too: its startTime */
+    double hstart[MAXH];
 } Model;
 
 typedef struct {
@@ -328,9 +331,9 @@ typedef struct {
     fmi2FMUstate other;        /* for HS_OTHER */
     unsigned char *bytes;      /* a buffer to deserialize (owned by the op) */
     size_t nbytes;
-    int corrupt, buf_tknown;
+    int corrupt, buf_tknown, buf_start_known;
     unsigned buf_phases;
-    double buf_t;
+    double buf_t, buf_start;
     int oom;                   /* -1, or the allocation in this operation that fails */
 } Op;
 
@@ -915,10 +918,17 @@ static void transition(Model *m, int fn, fmi2Status st, unsigned target) {
     }
 }
 
-typedef struct { unsigned char *b; size_t n; unsigned phases; int t_known; double t; int origin; } Buf;
+typedef struct {
+    unsigned char *b;
+    size_t n;
+    unsigned phases;
+    int t_known, start_known;
+    double t, start;
+    int origin;
+} Buf;
 static Buf pool[MAXB];
 
-static void pool_put(int slot, Res *r, unsigned phases, int t_known, double t) {
+static void pool_put(int slot, Res *r, unsigned phases, int t_known, double t, int start_known, double start) {
     Buf *b = &pool[rbelow(MAXB)];
     free(b->b);
     b->b = r->bytes;
@@ -926,6 +936,8 @@ static void pool_put(int slot, Res *r, unsigned phases, int t_known, double t) {
     b->phases = phases;
     b->t_known = t_known;
     b->t = t;
+    b->start_known = start_known;
+    b->start = start;
     b->origin = slot;
     r->bytes = NULL;
 }
@@ -941,18 +953,22 @@ static void apply(int slot, const Op *op, Res *r) {
         if (in->c) {
             m->phases = P_INST;
             m->t_known = 1;
+            m->start_known = 1;
         }
         break;
     case OP_FREE: memset(m, 0, sizeof *m); break;
     case OP_SETUP:
-        if (OKISH(st)) m->start = op->x1;
+        if (OKISH(st)) {
+            m->start = op->x1;
+            m->start_known = 1;
+        }
         transition(m, FN_SetupExperiment, st, 0);
         break;
     case OP_ENTER: transition(m, FN_EnterInitializationMode, st, P_INIT); break;
     case OP_EXIT:
         transition(m, FN_ExitInitializationMode, st, P_STEP);
         if (OKISH(st)) {
-            m->t_known = 1;
+            m->t_known = m->start_known;
             m->t = m->start;
         }
         break;
@@ -961,6 +977,7 @@ static void apply(int slot, const Op *op, Res *r) {
         transition(m, FN_Reset, st, P_INST);
         if (OKISH(st)) {
             m->start = 0;
+            m->start_known = 1;
             m->t = 0;
             m->t_known = 1;
         }
@@ -975,6 +992,8 @@ static void apply(int slot, const Op *op, Res *r) {
             m->hph[op->hdst] = m->phases;
             m->ht_known[op->hdst] = m->t_known;
             m->ht[op->hdst] = m->t;
+            m->hstart_known[op->hdst] = m->start_known;
+            m->hstart[op->hdst] = m->start;
         }
         transition(m, FN_GetFMUstate, st, 0);
         break;
@@ -983,6 +1002,8 @@ static void apply(int slot, const Op *op, Res *r) {
             m->phases = m->hph[op->hsel];
             m->t_known = m->ht_known[op->hsel];
             m->t = m->ht[op->hsel];
+            m->start_known = m->hstart_known[op->hsel];
+            m->start = m->hstart[op->hsel];
         } else {
             transition(m, FN_SetFMUstate, st, 0);
         }
@@ -992,7 +1013,9 @@ static void apply(int slot, const Op *op, Res *r) {
         transition(m, FN_FreeFMUstate, st, 0);
         break;
     case OP_SERIALIZE:
-        if (r->bytes && op->hsel >= 0) pool_put(slot, r, m->hph[op->hsel], m->ht_known[op->hsel], m->ht[op->hsel]);
+        if (r->bytes && op->hsel >= 0)
+            pool_put(slot, r, m->hph[op->hsel], m->ht_known[op->hsel], m->ht[op->hsel], m->hstart_known[op->hsel],
+                     m->hstart[op->hsel]);
         transition(m, FN_SerializeFMUstate, st, 0);
         break;
     case OP_DESERIALIZE:
@@ -1003,6 +1026,8 @@ static void apply(int slot, const Op *op, Res *r) {
             m->hph[k] = clean ? op->buf_phases : P_LIVE;
             m->ht_known[k] = clean && op->buf_tknown;
             m->ht[k] = op->buf_t;
+            m->hstart_known[k] = clean && op->buf_start_known;
+            m->hstart[k] = op->buf_start;
         }
         transition(m, FN_DeSerializeFMUstate, st, 0);
         break;
@@ -1011,7 +1036,7 @@ static void apply(int slot, const Op *op, Res *r) {
             m->phases = m->phases ? P_LIVE : 0;
             m->t_known = 0;
         } else {
-            pool_put(slot, r, m->phases, m->t_known, m->t);
+            pool_put(slot, r, m->phases, m->t_known, m->t, m->start_known, m->start);
         }
         break;
     case OP_NULLINST:
@@ -1123,6 +1148,8 @@ static void gen_buffer(Op *op, int slot) {
         op->buf_phases = src->phases;
         op->buf_tknown = src->t_known;
         op->buf_t = src->t;
+        op->buf_start_known = src->start_known;
+        op->buf_start = src->start;
         if (src->origin != slot) g.foreign_buffers += 1;
     }
     unsigned char *b = op->bytes;

@@ -2,6 +2,7 @@
  * FMU state save/restore and serialisation, the independent variable time, and that it steps the
  * plant exactly as the FMI 2.0 layer does (both are linked in: they share maglev_fmi_common.c).
  * Run under ASan/UBSan in CI (MAGLEV_SANITIZE=ON). */
+#define _POSIX_C_SOURCE 200809L /* mkdtemp (temp_dir.h), for a rig's resources folder */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -12,6 +13,7 @@
 #include "fmi3Functions.h"
 #include "maglev_fmi_common.h"
 #include "check.h"
+#include "temp_dir.h"
 
 #define VR_TIME ((fmi3ValueReference)MAGLEV_NVARS)
 
@@ -280,12 +282,81 @@ static void test_same_as_fmi2(void) {
     fmi3FreeInstance(c3);
 }
 
+/* fmi3Reset puts the FMU into the state right after fmi3InstantiateCoSimulation, a rig's start values
+ * (resources/start_values.txt) included: it shares mf_reset with fmi2Reset, which put the C defaults there. */
+static void test_reset_keeps_start_values(void) {
+    char dir[512], res[600], file[600];
+    if (!make_temp_dir(dir, sizeof dir, "reset3")) {
+        CHECK(0, "cannot make a temporary folder");
+        return;
+    }
+    snprintf(res, sizeof res, "%s/", dir); /* FMI 3.0: a path with a trailing separator, no URI */
+    snprintf(file, sizeof file, "%s/start_values.txt", dir);
+    CHECK(write_text(file, "k_c 1.5e-05\n") == 0, "cannot write %s", file);
+    fmi3Instance c = fmi3InstantiateCoSimulation("rig", MAGLEV_GUID, res, fmi3False, fmi3False, fmi3False, fmi3False,
+                                                 NULL, 0, NULL, logger, NULL);
+    CHECK(c != NULL, "rig FMU refused: %s", last_log);
+    remove(file);
+    remove_dir(dir);
+    if (!c) return;
+    fmi3ValueReference kvr = VR_k_c;
+    for (int round = 0; round < 2; round++) {
+        double kc = -1, last;
+        fmi3Status st;
+        CHECK(fmi3EnterInitializationMode(c, fmi3False, 0, 0.0, fmi3False, 0) == fmi3OK, "round %d: enter: %s", round,
+              last_log);
+        CHECK(fmi3GetFloat64(c, &kvr, 1, &kc, 1) == fmi3OK && kc == 1.5e-5, "round %d: k_c = %g, not the rig's "
+              "1.5e-05", round, kc);
+        set1(c, VR_k_c, 2e-5, &st);
+        CHECK(fmi3ExitInitializationMode(c) == fmi3OK, "round %d: exit: %s", round, last_log);
+        CHECK(step(c, 0.0, 1e-3, &last) == fmi3OK, "round %d: step: %s", round, last_log);
+        CHECK(fmi3Reset(c) == fmi3OK, "round %d: reset: %s", round, last_log);
+    }
+    fmi3FreeInstance(c);
+}
+
+/* An FMU state holds the experiment fmi3EnterInitializationMode gave (start, stop, tolerance): after a reset
+ * and fmi3SetFMUState the FMU started at 0 instead of 5 s and stepped past the stop time. */
+static void check_experiment_restored(fmi3Instance c, const char *what) {
+    double last = -1;
+    CHECK(fmi3ExitInitializationMode(c) == fmi3OK, "%s: exit: %s", what, last_log);
+    last_log[0] = 0;
+    CHECK(step(c, 5.0, 1e-3, &last) == fmi3OK && last == 5.001, "%s: step from startTime 5 s: last %g: %s", what,
+          last, last_log);
+    last_log[0] = 0;
+    CHECK(step(c, 5.001, 10.0, &last) == fmi3Error && logged("stopTime"), "%s: a step past stopTime 6 s not "
+          "refused: '%s'", what, last_log);
+}
+
+static void test_state_holds_experiment(void) {
+    fmi3Instance c = make("experiment");
+    CHECK(fmi3EnterInitializationMode(c, fmi3True, 1e-6, 5.0, fmi3True, 6.0) == fmi3OK, "enter: %s", last_log);
+    fmi3FMUState s = NULL, r = NULL;
+    CHECK(fmi3GetFMUState(c, &s) == fmi3OK, "state in initialization mode: %s", last_log);
+    size_t size = 0;
+    CHECK(fmi3SerializedFMUStateSize(c, s, &size) == fmi3OK, "size: %s", last_log);
+    fmi3Byte *buf = malloc(size ? size : 1);
+    CHECK(fmi3SerializeFMUState(c, s, buf, size) == fmi3OK, "serialize: %s", last_log);
+    CHECK(fmi3Reset(c) == fmi3OK, "reset: %s", last_log);
+    CHECK(fmi3SetFMUState(c, s) == fmi3OK, "set state: %s", last_log);
+    check_experiment_restored(c, "after a reset");
+    fmi3Instance d = make("experiment2");
+    CHECK(fmi3DeserializeFMUState(d, buf, size, &r) == fmi3OK, "deserialize: %s", last_log);
+    CHECK(fmi3SetFMUState(d, r) == fmi3OK, "set the deserialized state: %s", last_log);
+    check_experiment_restored(d, "deserialized into another instance");
+    free(buf);
+    fmi3FreeInstance(c);
+    fmi3FreeInstance(d);
+}
+
 int main(void) {
     test_instantiate_arguments();
     test_call_sequence();
     test_bad_values();
     test_state_save_restore_and_serialization();
     test_same_as_fmi2();
+    test_reset_keeps_start_values();
+    test_state_holds_experiment();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }

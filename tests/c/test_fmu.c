@@ -1,21 +1,17 @@
 /* C tests of the FMI 2.0 layer: call sequences, bad arguments, several instances,
  * FMU state round trips. Run under ASan/UBSan in CI (MAGLEV_SANITIZE=ON). */
-#define _POSIX_C_SOURCE 200809L /* mkdtemp, for the resources folder of test_issued_guid */
+#define _POSIX_C_SOURCE 200809L /* mkdtemp (temp_dir.h), for the resources folders of the tests */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
-#ifdef _WIN32 /* the Windows build (cross-compiled with mingw-w64, run under wine): its own temporary folder */
-#include <direct.h>
-#include <process.h>
-#include <windows.h>
-#endif
 
 #include "fmi2Functions.h"
+#include "maglev_fmi_common.h"
 #include "maglev_plant.h"
 #include "check.h"
+#include "temp_dir.h"
 
 #define GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 
@@ -377,8 +373,10 @@ static void test_step_work_bounded(void) {
     (void)t;
 }
 
-/* 2: long steps. A ball at rest on a stop is fast-forwarded exactly; a levitating ball falls onto a
- * stop within the budget and the rest of a 100 s step is then at rest. */
+/* 2: long steps. A ball at rest on a stop is fast-forwarded exactly, whatever the step. A levitating ball
+ * is counted in full before the step (defect 6 of docs/fuzz.md): 100 s of 0.1 ms substeps are over the
+ * budget, although the ball would reach a stop within a second; 10 s are not, and after them the ball
+ * rests there for the remaining 90 s. */
 static void test_long_steps(void) {
     fmi2Component c = make_initialized("floor", VR_u, 0.0);
     CHECK(fmi2DoStep(c, 0, 100.0, fmi2True) == fmi2OK, "100 s on the floor: %s", last_log);
@@ -394,9 +392,12 @@ static void test_long_steps(void) {
     c = make_levitating("lev", &u_eq);
     double up = u_eq * 1.05;
     set1(c, VR_u, up);
-    CHECK(fmi2DoStep(c, 0, 100.0, fmi2True) == fmi2OK, "100 s from levitation: %s", last_log);
+    CHECK(fmi2DoStep(c, 0, 100.0, fmi2True) == fmi2Error && logged("solver_step"), "100 s from levitation: %s",
+          last_log);
+    CHECK(fmi2DoStep(c, 0, 10.0, fmi2True) == fmi2OK, "10 s from levitation: %s", last_log);
     fmi2GetReal(c, VR_OUT, 4, y);
     CHECK(y[1] == 6.3e-3 && y[2] == 0.0, "more current must end at the upper stop: x %g v %g", y[1], y[2]);
+    CHECK(fmi2DoStep(c, 10.0, 90.0, fmi2True) == fmi2OK, "90 s at rest on the upper stop: %s", last_log);
     fmi2FreeInstance(c);
 
     /* with a force lag the lag relaxes exactly while the ball rests: compare with 1 ms steps */
@@ -671,24 +672,34 @@ static void test_deserialize_checks_values(void) {
     fmi2SerializedFMUstateSize(c, s, &size);
     fmi2Byte *buf = malloc(size), *bad = malloc(size);
     fmi2SerializeFMUstate(c, s, buf, size);
-    /* layout (maglev_plant.c): 28-byte header, the parameters, then time, u, x, v, i, F, contact */
-    size_t state_at = 28 + 8 * (size_t)MAGLEV_NPARAMS;
+    /* layout (maglev_plant.c): 28-byte header, the parameters, then time, u, x, v, i, F, xs, the experiment
+     * (startTime, stopTime, tolerance; neither of the last two defined here), contact, the experiment's flags */
+    size_t state_at = 28 + 8 * (size_t)MAGLEV_NPARAMS, flags_at = state_at + 10 * 8 + 4;
     struct { size_t at; double value; const char *what; } cases[] = {
         {state_at + 2 * 8, 8.3e-3, "x = x_0"},   {state_at + 2 * 8, -5.0, "x = -5 m"},
         {state_at + 4 * 8, -1.0, "i = -1 A"},    {state_at + 4 * 8, 2.0, "i above i_max"},
         {state_at + 3 * 8, NAN, "v = NaN"},      {state_at + 0 * 8, 1e300, "time = 1e300 s"},
         {28 + 8 * (size_t)(VR_x_max - MAGLEV_FIRST_PARAM), 9e-3, "x_max above x_0"},
         {28 + 8 * (size_t)(VR_m_k - MAGLEV_FIRST_PARAM), -1.0, "m_k < 0"},
+        {state_at + 7 * 8, NAN, "startTime NaN"}, {state_at + 7 * 8, 2e9, "startTime 2e9 s"},
+        {state_at + 8 * 8, 1.0, "an undefined stopTime of 1 s"}, {state_at + 9 * 8, 1e-6, "an undefined tolerance"},
+        {flags_at, 0.0, "flags: tolerance 0 defined"}, {flags_at, 0.0, "flags: unknown bit"},
     };
     for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
         memcpy(bad, buf, size);
-        memcpy(bad + cases[k].at, &cases[k].value, 8);
+        if (cases[k].at == flags_at) {
+            unsigned int flags = strstr(cases[k].what, "unknown") ? 4u : 2u;
+            memcpy(bad + flags_at, &flags, 4);
+        } else {
+            memcpy(bad + cases[k].at, &cases[k].value, 8);
+        }
         unsigned long long sum = fnv1a(bad, size - 8);
         memcpy(bad + size - 8, &sum, 8);
         fmi2FMUstate r = NULL;
         last_log[0] = 0;
         CHECK(fmi2DeSerializeFMUstate(c, bad, size, &r) == fmi2Error && r == NULL, "%s accepted", cases[k].what);
         CHECK(logged("cannot have"), "%s: %s", cases[k].what, last_log);
+        CHECK(cases[k].at < state_at + 7 * 8 || logged("experiment"), "%s: %s", cases[k].what, last_log);
     }
     /* the untouched buffer, its checksum recomputed, still restores: the test edits only values */
     memcpy(bad, buf, size);
@@ -759,42 +770,13 @@ static void test_refused_step_keeps_time(void) {
 /* A calibrated FMU's GUID, issued by the packager in resources/guid.txt: exactly that GUID is
  * accepted (the built-in one no longer), and a guid.txt without a GUID is refused, naming the file. */
 static void write_file(const char *path, const char *text) {
-    FILE *fp = fopen(path, "w");
-    CHECK(fp != NULL, "cannot write %s", path);
-    if (!fp) return;
-    fputs(text, fp);
-    fclose(fp);
-}
-
-/* A new folder: dir, with '/' separators; NULL when it cannot be made. */
-static char *make_temp_dir(char *dir, size_t len) {
-#ifdef _WIN32
-    char base[MAX_PATH + 1];
-    DWORD n = GetTempPathA(sizeof base, base); /* ends with a separator */
-    if (n == 0 || n >= sizeof base) return NULL;
-    snprintf(dir, len, "%smaglev_guid_%d", base, _getpid());
-    for (char *p = dir; *p; p++)
-        if (*p == '\\') *p = '/';
-    return _mkdir(dir) == 0 ? dir : NULL;
-#else
-    snprintf(dir, len, "/tmp/maglev_guid_XXXXXX");
-    return mkdtemp(dir);
-#endif
-}
-
-static void remove_dir(const char *dir) {
-#ifdef _WIN32
-    _rmdir(dir);
-#else
-    rmdir(dir);
-#endif
+    CHECK(write_text(path, text) == 0, "cannot write %s", path);
 }
 
 static void test_issued_guid(void) {
     char dir[512], uri[600], file[600];
-    CHECK(make_temp_dir(dir, sizeof dir) != NULL, "cannot make a temporary folder");
-    /* file:///tmp/x on Linux, file:///C:/x on Windows (mf_uri_to_path turns it into C:/x) */
-    snprintf(uri, sizeof uri, "file://%s%s", dir[0] == '/' ? "" : "/", dir);
+    CHECK(make_temp_dir(dir, sizeof dir, "guid") != NULL, "cannot make a temporary folder");
+    folder_uri(dir, uri, sizeof uri); /* file:///C:/x on Windows: mf_uri_to_path turns it into C:/x */
     snprintf(file, sizeof file, "%s/guid.txt", dir);
     const char *issued = "{0b6c2a8e-1111-5222-8333-444455556666}";
     write_file(file, "{0b6c2a8e-1111-5222-8333-444455556666}\n");
@@ -813,6 +795,230 @@ static void test_issued_guid(void) {
     /* no guid.txt: the built-in GUID, as before */
     c = fmi2Instantiate("nominal", fmi2CoSimulation, GUID, uri, &callbacks, 0, 0);
     CHECK(c != NULL, "built-in GUID refused without guid.txt: %s", last_log);
+    fmi2FreeInstance(c);
+}
+
+/* 13 (defect 4 of docs/fuzz.md): fmi2Reset puts the FMU into the state right after fmi2Instantiate, and a
+ * rig's or calibrated FMU's start values in resources/start_values.txt are part of that state: reset used to
+ * put the C defaults in their place (k_c back to 6.9e-6), return OK and log nothing. The file is gone before
+ * the reset: the instance keeps what it read, as an importer may clean up the unpacked FMU early. */
+static void test_reset_keeps_start_values(void) {
+    char dir[512], uri[600], file[600];
+    if (!make_temp_dir(dir, sizeof dir, "reset")) {
+        CHECK(0, "cannot make a temporary folder");
+        return;
+    }
+    folder_uri(dir, uri, sizeof uri);
+    snprintf(file, sizeof file, "%s/start_values.txt", dir);
+    write_file(file, "# a rig's parameters\nk_c 1.5e-05\nsolver_step 5e-05\n");
+    fmi2Component c = fmi2Instantiate("rig", fmi2CoSimulation, GUID, uri, &callbacks, fmi2False, fmi2True);
+    CHECK(c != NULL, "rig FMU refused: %s", last_log);
+    remove(file);
+    remove_dir(dir);
+    if (!c) return;
+    for (int round = 0; round < 2; round++) {
+        fmi2Status st;
+        CHECK(fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0) == fmi2OK, "round %d: setup: %s", round,
+              last_log);
+        CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "round %d: enter: %s", round, last_log);
+        double kc = get1(c, VR_k_c, &st), h = get1(c, VR_solver_step, NULL);
+        CHECK(st == fmi2OK && kc == 1.5e-5 && h == 5e-5, "round %d: k_c = %g, solver_step = %g, not the rig's "
+              "1.5e-05, 5e-05", round, kc, h);
+        CHECK(set1(c, VR_k_c, 2e-5) == fmi2OK, "round %d: k_c settable in initialization mode", round);
+        CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "round %d: exit: %s", round, last_log);
+        CHECK(fmi2DoStep(c, 0.0, 1e-3, fmi2True) == fmi2OK, "round %d: step: %s", round, last_log);
+        last_log[0] = 0;
+        CHECK(fmi2Reset(c) == fmi2OK, "round %d: reset: %s", round, last_log);
+        CHECK(logged("fmi2Reset") && logged("start_values.txt"), "round %d: reset logs no word of the start "
+              "values (logging on): '%s'", round, last_log);
+    }
+    fmi2FreeInstance(c);
+}
+
+/* Serializes an FMU state into a new buffer (*size bytes); NULL when refused. */
+static fmi2Byte *serialize(fmi2Component c, fmi2FMUstate s, size_t *size) {
+    *size = 0;
+    if (fmi2SerializedFMUstateSize(c, s, size) != fmi2OK || *size == 0) return NULL;
+    fmi2Byte *buf = malloc(*size);
+    if (buf && fmi2SerializeFMUstate(c, s, buf, *size) != fmi2OK) {
+        free(buf);
+        return NULL;
+    }
+    return buf;
+}
+
+/* After fmi2SetFMUstate, the instance starts and stops where the state's experiment says: enter and exit
+ * initialization, a step from start, a step past stop refused. */
+static void check_experiment_restored(fmi2Component c, const char *what) {
+    CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "%s: enter: %s", what, last_log);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "%s: exit: %s", what, last_log);
+    double t = -1;
+    CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 5.0, "%s: time %g after "
+          "initialization, not the startTime 5 s", what, t);
+    last_log[0] = 0;
+    CHECK(fmi2DoStep(c, 5.0, 1e-3, fmi2True) == fmi2OK, "%s: step from startTime 5 s: %s", what, last_log);
+    last_log[0] = 0;
+    CHECK(fmi2DoStep(c, 5.001, 10.0, fmi2True) == fmi2Error && logged("stopTime"), "%s: a step past stopTime 6 s "
+          "not refused: '%s'", what, last_log);
+}
+
+/* 14 (defect 5 of docs/fuzz.md): an FMU state holds the experiment fmi2SetupExperiment gave (start, stop and
+ * whether it is defined, tolerance): it held the plant and the state machine only, so that after a reset and
+ * fmi2SetFMUstate the FMU started at 0 instead of 5 s, refused DoStep(5, 1e-3) and stepped past the stop time.
+ * The same through the serialized form, in another instance; the format's version went from 3 to 4 with it,
+ * and old images are refused by their version. */
+static void test_state_holds_experiment(void) {
+    fmi2Component c = make("experiment");
+    CHECK(fmi2SetupExperiment(c, fmi2True, 1e-6, 5.0, fmi2True, 6.0) == fmi2OK, "setup: %s", last_log);
+    fmi2FMUstate inst = NULL, init = NULL;
+    CHECK(fmi2GetFMUstate(c, &inst) == fmi2OK, "state in instantiated: %s", last_log);
+    size_t size = 0;
+    fmi2Byte *buf = serialize(c, inst, &size);
+    CHECK(buf != NULL, "serialize: %s", last_log);
+    CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "enter: %s", last_log);
+    CHECK(fmi2GetFMUstate(c, &init) == fmi2OK, "state in initialization mode: %s", last_log);
+    CHECK(fmi2Reset(c) == fmi2OK, "reset: %s", last_log);
+    CHECK(fmi2SetFMUstate(c, inst) == fmi2OK, "set the instantiated state: %s", last_log);
+    check_experiment_restored(c, "instantiated state after a reset");
+    CHECK(fmi2Reset(c) == fmi2OK, "reset: %s", last_log);
+    CHECK(fmi2SetFMUstate(c, init) == fmi2OK, "set the initialization-mode state: %s", last_log);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "exit: %s", last_log);
+    double t = -1;
+    CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 5.0, "initialization-mode state: "
+          "time %g, not 5 s", t);
+    CHECK(fmi2DoStep(c, 5.0, 2.0, fmi2True) == fmi2Error && logged("stopTime"), "initialization-mode state: a step "
+          "past stopTime 6 s not refused: '%s'", last_log);
+
+    fmi2Component d = make("experiment2");
+    fmi2FMUstate r = NULL;
+    CHECK(buf && fmi2DeSerializeFMUstate(d, buf, size, &r) == fmi2OK, "deserialize: %s", last_log);
+    CHECK(fmi2SetFMUstate(d, r) == fmi2OK, "set the deserialized state: %s", last_log);
+    check_experiment_restored(d, "deserialized into another instance");
+    /* the tolerance is part of it: the same experiment without one serializes differently */
+    fmi2Component e = make("experiment3");
+    fmi2SetupExperiment(e, fmi2False, 0, 5.0, fmi2True, 6.0);
+    fmi2FMUstate q = NULL;
+    fmi2GetFMUstate(e, &q);
+    size_t size2 = 0;
+    fmi2Byte *buf2 = serialize(e, q, &size2);
+    CHECK(buf && buf2 && size2 == size && memcmp(buf, buf2, size) != 0, "the tolerance is not in the serialized "
+          "state");
+    /* an image of the old format (version 3: no experiment between xs and contact, no flags after it) is
+     * refused by its version, not misread */
+    size_t at = 28 + 8 * ((size_t)MAGLEV_NPARAMS + 7), old_size = size - 28;
+    if (buf && size > at + 32) {
+        fmi2Byte *old = malloc(old_size);
+        memcpy(old, buf, at);
+        memcpy(old + at, buf + at + 24, 4);                      /* contact */
+        memcpy(old + at + 4, buf + at + 32, size - at - 32 - 8); /* the delay history */
+        unsigned int v3 = 3;
+        memcpy(old + 4, &v3, 4);
+        unsigned long long sum = fnv1a(old, old_size - 8);
+        memcpy(old + old_size - 8, &sum, 8);
+        fmi2FMUstate o = NULL;
+        last_log[0] = 0;
+        CHECK(fmi2DeSerializeFMUstate(d, old, old_size, &o) == fmi2Error && o == NULL && logged("version 3"),
+              "a version-3 image: '%s'", last_log);
+        free(old);
+    }
+    free(buf);
+    free(buf2);
+    fmi2FreeInstance(c);
+    fmi2FreeInstance(d);
+    fmi2FreeInstance(e);
+}
+
+/* 15: the work budget is decided before integrating (defect 6 of docs/fuzz.md). A step it refuses spent the
+ * whole budget first (500000 RK4 substeps, up to a quarter of a second), and its message blamed solver_step
+ * also where the friction, the voltage drive or the force lag set the substeps. Now it is refused at once,
+ * no RK4 evaluation spent (the plant's work counter), naming what sets the substeps; a long step within the
+ * budget still runs. An amplifier transient under a force lag is named too (the plant case). The FMU cases
+ * have a voltage drive (R_c > 0): its current has no closed form, so the ball never counts as at rest, and
+ * every one of these steps was refused before too (after the work). */
+static fmi2Component make_free_ball(const char *name, const MaglevVR *vr, const double *val, int n) {
+    fmi2Component c = make(name);
+    set1(c, VR_x_start, 0.0032); /* between the stops: the ball cannot be at rest */
+    for (int k = 0; k < n; k++) CHECK(set1(c, vr[k], val[k]) == fmi2OK, "%s: %s", name, last_log);
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(c);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "%s: %s", name, last_log);
+    return c;
+}
+
+static void test_budget_decided_before_integrating(void) {
+    /* the plant: a refused step has spent nothing, an accepted one its substeps */
+    char msg[MAGLEV_MSG_LEN] = "";
+    MaglevPlant m;
+    maglev_defaults(&m);
+    double x = 0.0032, i = (8.3e-3 - x) * sqrt(8.4e-3 * 9.81 / 6.9e-6);
+    maglev_set_param(&m, VR_x_start, x);
+    maglev_set_param(&m, VR_i_start, i);
+    maglev_set_param(&m, VR_solver_step, 1e-6);
+    CHECK(maglev_initialize(&m, 0.0, i / 1.5, &maglev_std_allocator, msg, sizeof msg) == 0, "init: %s", msg);
+    m.work = -1;
+    CHECK(maglev_step(&m, 10.0, &maglev_std_allocator, msg, sizeof msg) == MAGLEV_REFUSED && m.work == 0 &&
+          strstr(msg, "solver_step"), "10 s at 1 us substeps: %ld RK4 evaluations spent: %s", m.work, msg);
+    CHECK(maglev_step(&m, 0.2, &maglev_std_allocator, msg, sizeof msg) == 0 && m.work > 100000 &&
+          m.work <= MAGLEV_STEP_BUDGET, "0.2 s at 1 us substeps: %ld RK4 evaluations: %s", m.work, msg);
+    maglev_release(&m, &maglev_std_allocator);
+    /* an amplifier transient under a force lag starts at T_a/8 substeps, in every piece a delayed input
+     * change begins: 20000 changes within the delay T_d = 1 s put a 1 s step over the budget */
+    maglev_defaults(&m);
+    maglev_set_param(&m, VR_T_d, 1.0);
+    maglev_set_param(&m, VR_T_F, 1e-3);
+    maglev_set_param(&m, VR_T_a, 1e-5);
+    CHECK(maglev_initialize(&m, 0.0, 0.3, &maglev_std_allocator, msg, sizeof msg) == 0, "init: %s", msg);
+    int ok = 1;
+    for (int k = 0; k < 20000 && ok; k++)
+        ok = maglev_set_input(&m, k % 2 ? 0.3 : 0.5, &maglev_std_allocator, msg, sizeof msg) == 0 &&
+             maglev_step(&m, 5e-5, &maglev_std_allocator, msg, sizeof msg) == 0;
+    CHECK(ok, "20000 steps of 50 us: %s", msg);
+    CHECK(maglev_step(&m, 0.999, &maglev_std_allocator, msg, sizeof msg) == MAGLEV_REFUSED && m.work == 0 &&
+          strstr(msg, "T_a = 1e-05 s") && strstr(msg, "pieces (the delay T_d)") && !strstr(msg, "solver_step"),
+          "a 1 s step through 20000 input changes: %ld RK4 evaluations: %s", m.work, msg);
+    maglev_release(&m, &maglev_std_allocator);
+
+    /* the FMU: the message names what sets the substeps; the instance carries on */
+    struct {
+        const char *what;
+        int n;
+        MaglevVR vr[2];
+        double val[2], h;
+        const char *names[2];
+    } cases[] = { /* R_c = 1 Ohm with L_0 = 0.1 H: the coil allows substeps of 20 ms, so the others set them */
+        {"solver_step", 2, {VR_R_c, VR_solver_step}, {1.0, 1e-6}, 10.0, {"solver_step = 1e-06 s"}},
+        {"friction", 2, {VR_R_c, VR_F_c}, {1.0, 2e-3}, 100.0, {"F_c = 0.002 N"}}, /* substeps of 42 us */
+        {"force lag", 2, {VR_R_c, VR_T_F}, {1.0, 1e-5}, 20.0, {"T_F = 1e-05 s"}},  /* 20 us */
+        {"voltage drive", 2, {VR_R_c, VR_L_0}, {4.17, 1e-4}, 10.0, {"R_c = 4.17 Ohm", "L_0 = 0.0001 H"}}, /* 4.8 us */
+    };
+    for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
+        fmi2Component c = make_free_ball(cases[k].what, cases[k].vr, cases[k].val, cases[k].n);
+        last_log[0] = 0;
+        CHECK(fmi2DoStep(c, 0.0, cases[k].h, fmi2True) == fmi2Error, "%s: a %g s step not refused", cases[k].what,
+              cases[k].h);
+        /* white box: the FMI 2.0 instance begins with the MfInstance that holds the plant */
+        long work = ((const MfInstance *)c)->plant.work;
+        CHECK(work == 0, "%s: the refused step spent %ld RK4 evaluations", cases[k].what, work);
+        CHECK(logged("RK4 steps") && logged("over the budget") && logged("shorter communication steps"),
+              "%s: message '%s'", cases[k].what, last_log);
+        for (int j = 0; j < 2 && cases[k].names[j]; j++)
+            CHECK(logged(cases[k].names[j]), "%s: the message does not name %s: '%s'", cases[k].what,
+                  cases[k].names[j], last_log);
+        CHECK(k == 0 || !logged("solver_step"), "%s: the message blames solver_step: '%s'", cases[k].what, last_log);
+        double t = -1;
+        CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 0.0, "%s: time %g", cases[k].what, t);
+        CHECK(fmi2DoStep(c, 0.0, 1e-3, fmi2True) == fmi2OK, "%s: no step after the refused one: %s", cases[k].what,
+              last_log);
+        fmi2FreeInstance(c);
+    }
+    /* a long step within the budget runs, every substep integrated: 40 s of 0.1 ms (the impact on the floor
+     * adds a few evaluations) */
+    const MaglevVR rc = VR_R_c;
+    const double one = 1.0;
+    fmi2Component c = make_free_ball("long", &rc, &one, 1);
+    CHECK(fmi2DoStep(c, 0.0, 40.0, fmi2True) == fmi2OK, "40 s at 0.1 ms substeps: %s", last_log);
+    long work = ((const MfInstance *)c)->plant.work;
+    CHECK(work >= 400000 && work <= MAGLEV_WORK_MAX, "40 s: %ld RK4 evaluations", work);
     fmi2FreeInstance(c);
 }
 
@@ -837,6 +1043,9 @@ int main(void) {
     test_instantiate_failure_logged();
     test_refused_step_keeps_time();
     test_issued_guid();
+    test_reset_keeps_start_values();
+    test_state_holds_experiment();
+    test_budget_decided_before_integrating();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }
