@@ -190,11 +190,19 @@ def test_calibrate_on_two_inteco_records_and_validate_on_a_third(tmp_path):
     assert [len(r["segments"]) for r in d["records"]] == [1, 1] and len(d["validation"]) == 1
     seg = d["records"][0]["segments"][0]["after"]
     assert set(seg["position"]) == {"5 ms", "20 ms", "50 ms"} and seg["current"]["from_actuator"] > 80
-    assert set(d["spread"]) == {"k_e", "z_e", "R_c", "k_DA", "u_0"} and d["calibration"]["cost_after"] < d["calibration"]["cost_before"]
-    assert d["verdict"] in ("explained", "unexplained: mechanics", "unexplained: actuator")
-    # the catalogue's effects were tried on held-out blocks, each with its gain per signal
+    # the spread between records: each record's own coil and force gain
+    assert set(d["spread"]) == {"k_e", "R_c", "k_DA", "u_0"} and d["calibration"]["cost_after"] < d["calibration"]["cost_before"]
+    assert set(d["coil_drift"]) == {"R_c", "k_DA", "u_0"} and len(d["validation"][0]["own_coil"]) == 3
+    assert d["verdict"] in ("no effect", "explained", "explained in part", "unexplained: mechanics",
+                            "unexplained: actuator")
+    # the calibration fits the mechanics' damping and force lag with the force law; the catalogue's
+    # other effects were tried on held-out blocks, each with its gain per signal
+    assert set(d["calibration"]["names"]) >= {"k_e", "z_e", "k_FV", "T_F"}
     ef = d["effects"]
-    assert {c["effect"] for c in ef["candidates"] if c["round"] == 1} == {"force_lag", "delay", "damping"}
+    assert {c["effect"] for c in ef["candidates"] if c["round"] == 1} == {"delay"}
+    # the model, the black box and the naive predictors side by side, per role and horizon
+    assert set(d["comparison"]) == {"calibration", "validation"}
+    assert set(d["comparison"]["validation"]["50 ms"]) >= {"model", "black_box", "constant_velocity"}
     assert all(set(c["held_out_gains"]) >= {"y", "i"} for c in ef["candidates"])
     assert set(ef["parameters"]) <= set(d["parameters"])
     assert 0.5 < d["validation"][0]["force_balance_calibrated"]["median"] < 1.5

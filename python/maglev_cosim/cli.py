@@ -308,8 +308,16 @@ def _print_rig_result(res: dict) -> None:
     for v in res["validation"]:
         f = v["after"]
         cur = f.get("current") or {}
-        print(f"validation {v['label']}: current {cur.get('from_actuator', float('nan')):.1f} %  20 ms skill "
-              f"{f['position']['20 ms']['skill_vs_stays_put']:+.2f}")
+        print(f"validation {v['label']}: current {cur.get('from_actuator', float('nan')):.1f} %  "
+              + "  ".join(f"{h}: skill {p['skill_vs_stays_put']:+.2f}" for h, p in f["position"].items()))
+    comp = res.get("comparison") or {}
+    if comp:
+        print("median skill against 'stays put' (worst): model / black box / constant velocity")
+        for role, c in comp.items():
+            for h, v in c.items():
+                if h != "segments":
+                    print(f"  {role} ({c['segments']}) {h:>6}: " + " / ".join(
+                        f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in ("model", "black_box", "constant_velocity")))
     print("wrote " + ", ".join(res["written"]))
 
 

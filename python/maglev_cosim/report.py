@@ -322,6 +322,10 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     out.mkdir(parents=True, exist_ok=True)
     written: dict[str, Path] = {}
     data = d.to_json()
+    # no calibrated FMU of a calibration that failed: its parameters are not a model of the rig
+    failed = d.verdict is not None and d.verdict.verdict == "calibration failed"
+    fmu_out = out / "maglev_calibrated.fmu" if fmu is not None and not failed else None
+    data["calibrated_fmu"] = {"file": str(fmu_out), "records": [{"file": Path(rec.path).name}]} if fmu_out else None
     (out / "diagnosis.json").write_text(json.dumps(data, indent=2, default=float))
     written["json"] = out / "diagnosis.json"
     pngs = _plots(rec, d, out)
@@ -426,7 +430,10 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     lines += ["", "## Plots", ""]
     for p in pngs:
         lines += [f"![{p}]({p})", ""]
-    if fmu is not None:
+    if fmu is not None and failed:
+        lines += ["## Calibrated FMU", "", "None written: the calibration failed, so its parameters are not a model "
+                  "of the rig.", ""]
+    if fmu_out is not None:
         lines += ["## Calibrated FMU", "",
                   "`maglev_calibrated.fmu` is the plant FMU with the final parameters as start values: drop it "
                   "into any FMI 2.0 tool. It is a model of its own (its own GUID and model name); it carries "
@@ -436,8 +443,8 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     (out / "report.md").write_text("\n".join(lines))
     written["report"] = out / "report.md"
     written["html"] = write_html(out / "report.md", out / "report.html")
-    if fmu is not None:
-        written["fmu"] = write_calibrated_fmu(rec, d, fmu, out / "maglev_calibrated.fmu", out)
+    if fmu_out is not None:
+        written["fmu"] = write_calibrated_fmu(rec, d, fmu, fmu_out, out)
     return written
 
 

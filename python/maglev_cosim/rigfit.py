@@ -26,9 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from . import fast
+from .diagnosis import blackbox as bb
 from .measured import Measured, Segment, levitation_segments
 from .metrics import nrmse_fit
 from .params import PlantParams
+from .report import calibrated_fmu, write_html
 from .rigs import Rig
 
 #: Prediction horizons of the position figures [s].
@@ -37,6 +39,17 @@ HORIZONS_S = (0.005, 0.020, 0.050)
 SETTLE_S = 0.5
 #: Parameters :func:`calibrate` fits, by drive type (multiplicative factors on the rig's values).
 CALIBRATED = {"voltage": ("k_e", "z_e", "R_c", "k_DA", "u_0"), "current": ("k_c", "x_0", "k_i", "T_a")}
+#: The coil's parameters, by drive type: fitted on the current from the actuator signal alone
+#: (:func:`calibrate_coil`), on the calibration records and again on every record (their drift).
+COIL = {"voltage": ("R_c", "k_DA", "u_0"), "current": ("k_i",)}
+#: The mechanics' velocity force and force lag, fitted with the force law (:func:`mechanics_names`).
+MECHANICS_TERMS = ("k_FV", "T_F")
+
+
+def mechanics_names(params: PlantParams) -> tuple[str, ...]:
+    """The force law's two constants (exponential law ``k_e, z_e`` or inverse square ``k_c, x_0``)
+    and :data:`MECHANICS_TERMS`: what :func:`calibrate` fits on the gap's prediction errors."""
+    return (("k_e", "z_e") if params.k_e > 0 else ("k_c", "x_0")) + MECHANICS_TERMS
 
 
 @dataclass
@@ -156,8 +169,6 @@ def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float]
     """The fit figures of one segment (module docstring); JSON-ready. ``black_box``: the fitted
     direct predictors per horizon (:func:`maglev_cosim.diagnosis.blackbox.fit`), shown beside the
     model and the naive predictors, all as skill against "stays put" over the same samples."""
-    from .diagnosis import blackbox as bb
-
     out: dict = {"label": r.label, "samples": len(r.y), "duration_s": len(r.y) * r.ts, "position": {}}
     if r.current is not None:
         o = predict(rig, r, params, r.ts, use_current=False, noise=noise)
@@ -174,6 +185,7 @@ def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float]
         stay = bb.stays_put(y, h)
         cv = bb.constant_velocity(y, h, r.ts)
         entry = {"model": nrmse_fit(y[ok], o["y_pred"][ok]), "stays_put": nrmse_fit(y[ok], stay[ok]),
+                 "rms_y": float(np.sqrt(np.mean((y[ok] - o["y_pred"][ok]) ** 2))) if ok.any() else float("nan"),
                  "constant_velocity": nrmse_fit(y[ok], cv[ok]),
                  "skill_vs_stays_put": bb.skill(y, o["y_pred"], stay, ok),
                  "skill": {"model": bb.skill(y, o["y_pred"], stay, ok),
@@ -201,6 +213,52 @@ def _to_position(rig: Rig, y_pred: np.ndarray) -> np.ndarray:
     ok = np.isfinite(y_pred)
     out[ok] = rig.position_for_reading(y_pred[ok])
     return out
+
+
+def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, *,
+                   names: Sequence[str] | None = None) -> tuple[PlantParams, dict]:
+    """The coil's parameters (default :data:`COIL` of the rig's drive) that make the current
+    computed from the actuator signal alone (the filter never sees the measured current; the gap
+    is tracked) fit the measured current: least squares on factors in [0.5, 2] (offsets ±1 V).
+    Returns the parameters and a summary (``values``, ``fit`` % per record, ``on_bounds``); with
+    no measured current, the parameters unchanged and ``None``."""
+    from scipy.optimize import least_squares
+
+    names = tuple(names or COIL[rig.drive])
+    use = [r for r in records if r.current is not None]
+    if not use:
+        return params, None
+    base = np.array([getattr(params, n) for n in names])
+    additive = np.array([n == "u_0" for n in names])
+    nz = noise_defaults(rig, params)
+
+    def make(z: np.ndarray) -> PlantParams:
+        return params.replace(**dict(zip(names, np.where(additive, base + z, base * z))))
+
+    def currents(p: PlantParams, r: RigRecord) -> tuple[np.ndarray, np.ndarray]:
+        o = predict(rig, r, p, r.ts, use_current=False, noise=nz)
+        ok = _valid(len(r.y), 1, r.ts) & np.isfinite(o["i_pred"])
+        return o["i_pred"][ok], r.current[ok]
+
+    def resid(z: np.ndarray) -> np.ndarray:
+        try:
+            p = make(z)
+            p.validate()
+            parts = []
+            for r in use:
+                ip, im = currents(p, r)
+                parts.append((ip - im)[::3] / max(float(np.std(im)), 1e-9) / np.sqrt(len(ip[::3]) * len(use)))
+            return np.nan_to_num(np.concatenate(parts), nan=10.0, posinf=10.0, neginf=-10.0)
+        except ValueError:
+            return np.full(sum(len(r.y) // 3 + 1 for r in use), 10.0)
+
+    lo, hi = np.where(additive, -1.0, 0.5), np.where(additive, 1.0, 2.0)
+    sol = least_squares(resid, np.where(additive, 0.0, 1.0), bounds=(lo, hi), x_scale=0.05, diff_step=1e-4,
+                        max_nfev=30)
+    p = make(sol.x)
+    return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
+               "fit": {r.label: nrmse_fit(*reversed(currents(p, r))) for r in use},
+               "on_bounds": [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]}
 
 
 #: The filter's disturbance model, calibrated with the plant (log-factors on :func:`noise_defaults`):
@@ -239,14 +297,19 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     lo = np.concatenate([np.where(additive, -1.0, np.where(absolute, 0.0, 0.5)), np.full(len(free), -4.0)])
     hi = np.concatenate([np.where(additive, 1.0, np.where(absolute, [effect_bound.get(n, 1.0) for n in names], 2.0)),
                          np.full(len(free), 4.0)])
-    z0 = np.concatenate([np.where(additive | absolute, 0.0, 1.0), np.zeros(len(free))])
+    # an effect parameter that is off starts inside its range (the middle of its catalogue grid):
+    # on its lower bound the fit would start where a lag's switch-on makes the cost jump
+    effect_start = {e[1]: e[3][len(e[3]) // 2] for e in RIG_EFFECTS}
+    z0 = np.concatenate([np.where(additive, 0.0, np.where(absolute, [effect_start.get(n, 0.0) for n in names], 1.0)),
+                         np.zeros(len(free))])
     scale = np.concatenate([np.where(absolute, 0.1 * hi[: len(names)], 0.1), np.ones(len(free))])
     evals = [0]
 
     def make(z: np.ndarray) -> tuple[PlantParams, dict[str, float]]:
         zp = z[: len(names)]
+        # an effect parameter under 1e-4 of its range is off (a lag of 1e-10 s is refused, not small)
         vals = np.where(additive, base + zp * np.where([n == "x_0" for n in names], 1e-3, 1.0),
-                        np.where(absolute, zp, base * zp))
+                        np.where(absolute, np.where(zp < 1e-4 * hi[: len(names)], 0.0, zp), base * zp))
         nz = dict(nz0)
         nz.update({k: nz0[k] * float(np.exp(v)) for k, v in zip(free, z[len(names):])})
         return p0.replace(**dict(zip(names, vals))), nz
@@ -290,11 +353,21 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     r0 = resid(z0)
     sol = least_squares(resid, z0, bounds=(lo, hi), x_scale=scale, diff_step=1e-3, max_nfev=max_evaluations)
     p, nz = make(sol.x)
+    # ±1σ of the parameters from the Jacobian at the solution (white, independent prediction errors
+    # assumed: the errors of overlapping horizons are correlated, so this is a lower bound)
+    dof = max(len(sol.fun) - len(sol.x), 1)
+    try:
+        cov = np.linalg.pinv(sol.jac.T @ sol.jac) * (2 * sol.cost / dof)
+        sz = np.sqrt(np.clip(np.diag(cov), 0, None))[: len(names)]
+    except np.linalg.LinAlgError:
+        sz = np.full(len(names), np.nan)
+    sigma = {n: float(sz[j] * (np.where(n == "x_0", 1e-3, 1.0) if additive[j] else (1.0 if absolute[j] else base[j])))
+             for j, n in enumerate(names)}
     at_bound = [n for n, z, a, b in zip((*names, *free), sol.x, lo, hi)
                 if min(z - a, b - z) < 1e-3 * (b - a) and not (n in names and absolute[names.index(n)] and z - a < 1e-9)]
     on_bound = [n for n in at_bound if n in names]
     return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
-               "rig_values": {n: float(v) for n, v in zip(names, base)}, "noise": nz,
+               "rig_values": {n: float(v) for n, v in zip(names, base)}, "noise": nz, "sigma": sigma,
                "horizons_s": list(horizons_s),
                "cost_before": float(0.5 * r0 @ r0), "cost_after": float(sol.cost), "evaluations": evals[0],
                "on_bounds": on_bound, "noise_on_bounds": [n for n in at_bound if n in NOISE]}
@@ -374,7 +447,7 @@ def _fit_one(rig: Rig, records: Sequence[RigRecord], params: PlantParams, name: 
 
 
 def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, say=lambda s: None, *,
-                  max_effects: int = 2, noise: dict[str, float] | None = None) -> dict:
+                  max_effects: int = 2, noise: dict[str, float] | None = None, skip: Sequence[str] = ()) -> dict:
     """The catalogue's effects (:data:`RIG_EFFECTS`) tried on the calibrated model of a real rig,
     in greedy rounds: each effect not yet selected is fitted on the even held-out blocks and judged
     on the odd ones by the 20 ms prediction cost of the gap and of the current, each on its own (a
@@ -384,7 +457,8 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
     the next round; at most ``max_effects``. JSON-ready: ``candidates`` (round, effect, parameter,
     value, location, held-out gain per signal), ``selected``, ``parameters`` (the selected effects'
     values) and ``held_out_cost`` of the model without an effect. ``noise``: the filter's
-    disturbance model (default :func:`noise_defaults`)."""
+    disturbance model (default :func:`noise_defaults`); ``skip``: parameters the calibration fits
+    already (their effects are not tried again)."""
     out: dict = {"held_out_cost": prediction_cost(rig, records, params, parity=1, noise=noise), "block_s": EFFECT_BLOCK_S,
                  "min_gain": MIN_EFFECT_GAIN, "candidates": [], "selected": [], "parameters": {}}
     current = params
@@ -392,7 +466,7 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
         base = prediction_cost(rig, records, current, parity=1, noise=noise)
         tried = []
         for name, param, location, grid, bounds in RIG_EFFECTS:
-            if name in out["selected"]:
+            if name in out["selected"] or param in skip:
                 continue
             say(f"round {rnd}: trying {name} ({param}) on the held-out blocks")
             v, _ = _fit_one(rig, records, current, param, grid, bounds, parity=0, noise=noise)
@@ -672,28 +746,33 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
     lacking = {id(r): why for r, why in zip(segs, info)}
     noise = noise_defaults(rig, params)
     fit_on = [r for r, why in zip(segs, info) if not why]
+    mech = mechanics_names(params)
     if fit_on:
-        say(f"calibrating {', '.join(CALIBRATED[rig.drive])} and the disturbance model on {len(fit_on)} segment(s)")
-        params, cal = calibrate(rig, fit_on)
+        # two stages, each on the signal its parameters act on: the coil on the current computed
+        # from the actuator signal, then the force law, the mechanics' terms and the filter's
+        # disturbance model on the gap predicted 20 and 50 ms ahead
+        say(f"calibrating the coil ({', '.join(COIL[rig.drive])}) on the current from the actuator signal")
+        params, coil = calibrate_coil(rig, fit_on, params)
+        result["coil_calibration"] = coil
+        say(f"calibrating {', '.join(mech)} and the disturbance model on {len(fit_on)} segment(s)")
+        params, cal = calibrate(rig, fit_on, params, names=mech)
         noise = cal["noise"]
         say(f"calibrated in {cal['evaluations']} evaluations: cost {cal['cost_before']:.4g} -> {cal['cost_after']:.4g}")
     if cal is not None and effects:
-        result["effects"] = effect_search(rig, fit_on, params, say, noise=noise)
+        result["effects"] = effect_search(rig, fit_on, params, say, noise=noise, skip=mech)
         chosen = list(result["effects"]["parameters"])
         params = params.replace(**result["effects"]["parameters"])
         if chosen:
-            # the selected effects refitted together with the plant and the disturbance model: an
-            # effect chosen with the others held may have taken the place of a parameter's error
-            say(f"refitting {', '.join(CALIBRATED[rig.drive] + tuple(chosen))} and the disturbance model together")
-            params, cal = calibrate(rig, fit_on, params, names=CALIBRATED[rig.drive] + tuple(chosen), noise=noise)
+            # the selected effects refitted together with the mechanics and the disturbance model:
+            # an effect chosen with the others held may have taken the place of a parameter's error
+            say(f"refitting {', '.join(mech + tuple(chosen))} and the disturbance model together")
+            params, cal = calibrate(rig, fit_on, params, names=mech + tuple(chosen), noise=noise)
             noise = cal["noise"]
             result["effects"]["parameters"] = {n: cal["values"][n] for n in chosen}
     result["calibration"] = cal
     result["disturbance_model"] = noise
     black_box = {}
     if fit_on:
-        from .diagnosis import blackbox as bb
-
         say(f"fitting the black-box baseline (direct ridge predictors at {', '.join(f'{h * 1e3:g}' for h in HORIZONS_S)}"
             " ms) on the same segments")
         series = [bb.Series(r.position, r.current if r.current is not None else r.u, r.ts) for r in fit_on]
@@ -713,11 +792,15 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
             entry["closed_loop"] = [closed_loop_figures(rig, r, m, params, controller.controller) for r in rs]
         for r in rs:
             say(f"figures of {r.label}")
-            before, after = figures(rig, r, rig.params), figures(rig, r, params, noise, black_box)
-            seg = {"label": r.label, "before": before, "after": after}
+            pr, own = _own_coil(rig, r, params, cal)
+            before, after = figures(rig, r, rig.params), figures(rig, r, pr, noise, black_box)
+            seg = {"label": r.label, "before": before, "after": after, "own_coil": own}
             if per_record and cal and len(segs) > 1 and not lacking[id(r)]:
-                own, own_info = calibrate(rig, [r], noise=noise, fit_noise=False)
-                seg["own_calibration"] = own_info["values"]
+                # the force law's gain on this record alone (the rest held): its spread between
+                # records is a finding, not noise
+                gain = mech[0]
+                _, own_info = calibrate(rig, [r], pr, names=(gain,), noise=noise, fit_noise=False, max_evaluations=15)
+                seg["own_calibration"] = {**(own or {}), gain: own_info["values"][gain]}
             frf = current_to_position(rig, r, params)
             seg["frequency_response"] = frf.get("summary")
             entry["segments"].append(seg)
@@ -727,22 +810,24 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
         fb = force_balance(rig, m, params)
         for r in rs:
             say(f"validation figures of {r.label}")
+            pr, own = _own_coil(rig, r, params, cal)
             result["validation"].append({"file": str(m.path), "label": r.label, "before": figures(rig, r, rig.params),
-                                         "after": figures(rig, r, params, noise, black_box), "warnings": m.warnings,
-                                         "force_balance_calibrated": fb})
+                                         "after": figures(rig, r, pr, noise, black_box), "warnings": m.warnings,
+                                         "force_balance_calibrated": fb, "own_coil": own})
     verdict, reasons = conclude(rig, figs_after, info, cal)
     result["comparison"] = comparison(figs_after, [v["after"] for v in result["validation"]])
     verdict, more = judge_against_black_box(verdict, result["comparison"])
     reasons += more
     if verdict == "explained" and not result.get("effects", {}).get("selected"):
         verdict = "no effect"   # the CE152 diagnosis's word: the calibrated model alone explains the record
-    for f in figs_after + [v["after"] for v in result["validation"]]:
-        dr = f.get("drift", {})
-        if dr.get("significant"):
-            reasons.append(f"{f['label']}: the random force the filter estimates drifts by "
-                           f"{dr['change_pct_weight']:+.1f} % of the weight over the segment "
-                           f"(±{dr['change_two_sigma']:.1f} % at 2σ; block means {dr['range_pct_weight'][0]:+.1f} to "
-                           f"{dr['range_pct_weight'][1]:+.1f} %): a force or a gain that changes during the run")
+    every = figs_after + [v["after"] for v in result["validation"]]
+    drifting = [f for f in every if f.get("drift", {}).get("significant")]
+    if drifting:
+        reasons.append(f"the random force the filter estimates drifts during the run in {len(drifting)} of {len(every)} "
+                       "segment(s), beyond its 2σ (change from the first to the last second, % of the weight): "
+                       + "; ".join(f"{f['label']} {f['drift']['change_pct_weight']:+.1f} ± "
+                                   f"{f['drift']['change_two_sigma']:.1f}" for f in drifting)
+                       + ": a force or a gain that changes during the run (drift.png)")
     held_skill = [v["after"]["position"]["20 ms"]["skill_vs_stays_put"] for v in result["validation"]]
     held_skill = [k for k in held_skill if np.isfinite(k)]
     if held_skill and np.median(held_skill) < MIN_SKILL:
@@ -816,19 +901,118 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
                                "(the unknown-controller path) and do not depend on it")
     result["verdict"], result["reasons"] = verdict, reasons
     own = [s["own_calibration"] for e in result["records"] for s in e["segments"] if "own_calibration" in s]
+    coils = [x["own_coil"] for x in [s for e in result["records"] for s in e["segments"]] + result["validation"]
+             if x.get("own_coil")]
+    if len(coils) > 1:
+        result["coil_drift"] = {n: {"min": min(c[n] for c in coils), "max": max(c[n] for c in coils),
+                                    "relative": float(np.ptp([c[n] for c in coils]) / abs(np.mean([c[n] for c in coils])))
+                                    if n != "u_0" else float(np.ptp([c[n] for c in coils]))}
+                                for n in coils[0]}
     if len(own) > 1:
         result["spread"] = {n: {"min": min(o[n] for o in own), "max": max(o[n] for o in own),
                                 "relative": float(np.ptp([o[n] for o in own]) / abs(np.mean([o[n] for o in own])))}
                             for n in own[0]}
-    result["parameters"] = {**{n: float(getattr(params, n)) for n in CALIBRATED[rig.drive]},
+    result["parameters"] = {**{n: float(getattr(params, n)) for n in (*COIL[rig.drive], *mech)},
                             **result.get("effects", {}).get("parameters", {})}
     out.mkdir(parents=True, exist_ok=True)
     plots = (_plots(rig, segs[:1], params, out, noise, black_box,
                     [*figs_after, *(v["after"] for v in result["validation"])]) if segs else [])
-    (out / json_name).write_text(json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
+    result.update(_shared_keys(result, train, held))
+    written = [out / json_name, out / "report.md", out / "report.html", *plots]
     (out / "report.md").write_text(_markdown(result, plots))
-    result["written"] = [str(out / json_name), str(out / "report.md"), *map(str, plots)]
+    write_html(out / "report.md", out / "report.html")
+    if verdict not in ("calibration failed", "too little information"):
+        fmu_path = out / "maglev_calibrated.fmu"
+        result["calibrated_fmu"] = _calibrated_rig_fmu(rig, result, params, train, out, fmu_path)
+        written.insert(3, fmu_path)
+    else:
+        result["calibrated_fmu"] = None   # nothing calibrated worth an FMU: the verdict says why
+    result["written"] = [str(p) for p in written]
+    (out / json_name).write_text(json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
     return result
+
+
+#: The keys every ``diagnosis.json`` holds, a CE152 record's or a real rig's (docs/diagnosis-json.md).
+SHARED_KEYS = ("verdict", "fit", "fit_before", "warnings", "selected", "parameters", "uncertainties", "before",
+               "after", "location_evidence", "calibrated_fmu")
+
+
+def _shared_keys(result: dict, train, held) -> dict:
+    """The keys a real rig's result shares with the CE152 diagnosis (:data:`SHARED_KEYS`), from
+    its own figures: ``fit`` and ``fit_before`` the median NRMSE fit % of the gap reading
+    (``y``) and of the current (``current``) predicted 20 ms ahead, beside ``free_run: None``
+    (an unknown controller is never run free: the plant is open-loop unstable); ``before`` and
+    ``after`` the RMS of the 20 ms prediction error of the reading [MU]; ``location_evidence``
+    the best held-out cost change per location among the catalogue's effects."""
+    segs = [s for e in result["records"] for s in e["segments"]]
+
+    def fit(key: str) -> dict:
+        y = [s[key]["position"]["20 ms"]["model"] for s in segs]
+        cur = [s[key]["current"]["20 ms"] for s in segs if s[key].get("current")]
+        return {"free_run": None, "prediction": {"horizon_s": 0.020, "y": float(np.median(y)) if y else None,
+                                                 "current": float(np.median(cur)) if cur else None}}
+
+    def rms(key: str) -> dict:
+        v = [s[key]["position"]["20 ms"].get("rms_y") for s in segs]
+        v = [x for x in v if x is not None]
+        return {"rms_y": float(np.sqrt(np.mean(np.square(v)))) if v else None, "horizon_s": 0.020}
+
+    evidence: dict = {}
+    for c in (result.get("effects") or {}).get("candidates", []):
+        loc = c["location"]
+        change = -c["held_out_gain"]
+        if loc not in evidence or change < evidence[loc]["held_out_cost_change"]:
+            evidence[loc] = {"effect": c["effect"], "held_out_cost_change": float(change)}
+    warnings = sorted({w for m, _ in [*train, *held] for w in m.warnings})
+    return {"fit": fit("after") if segs else None, "fit_before": fit("before") if segs else None,
+            "warnings": warnings, "selected": list((result.get("effects") or {}).get("selected", [])),
+            "uncertainties": (result.get("calibration") or {}).get("sigma", {}),
+            "before": rms("before") if segs else None, "after": rms("after") if segs else None,
+            "location_evidence": evidence}
+
+
+def _calibrated_rig_fmu(rig: Rig, result: dict, params: PlantParams, train, out: Path, path: Path) -> dict:
+    """The rig's FMU with the calibrated parameters as start values, with its provenance in
+    ``resources/calibration.json`` (records and their sha256, parameters with units and σ, the
+    verdict, the comparison with the black box) and the report as ``documentation/``."""
+    import hashlib
+    import json
+
+    from .fmu import ensure_fmu
+
+    units = {n: u for n, (_, _, _, u) in fast.param_table().items()}
+    sigma = result.get("uncertainties", {})
+    provenance = {
+        "format": "maglev-cosim calibration 1",
+        "rig": rig.name,
+        "records": [{"file": Path(m.path).name, "sha256": hashlib.sha256(Path(m.path).read_bytes()).hexdigest()}
+                    for m, _ in train],
+        "verdict": result["verdict"],
+        "effects": result["selected"],
+        "parameters": {n: {"value": float(v), "unit": units.get(n), **({"sigma": sigma[n]} if n in sigma else {})}
+                       for n, v in result["parameters"].items()},
+        "disturbance_model": result.get("disturbance_model"),
+        "comparison": result.get("comparison"),
+    }
+    docs = {"index.html": (out / "report.html").read_bytes(), "report.md": (out / "report.md").read_bytes()}
+    calibrated_fmu(ensure_fmu(None), path, params.to_start_values(),
+                   resources={"rig.toml": rig.path.read_bytes(),
+                              "calibration.json": (json.dumps(_finite(provenance), indent=2) + "\n").encode()},
+                   description=f"{rig.description}, calibrated on {', '.join(r['file'] for r in provenance['records'])} "
+                               f"(maglev-cosim; verdict {result['verdict']}; resources/calibration.json)",
+                   model_name=f"{rig.name} magnetic levitation, calibrated", documentation=docs,
+                   source_sha256=hashlib.sha256("".join(r["sha256"] for r in provenance["records"]).encode()).hexdigest())
+    return {"file": str(path), "records": provenance["records"]}
+
+
+def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> tuple[PlantParams, dict | None]:
+    """The model of one segment with its own coil (:func:`calibrate_coil` on the segment alone: a
+    resistance that follows heating, a drive gain that differs between runs) once the model is
+    calibrated; the segment's coil values, or ``None``."""
+    if cal is None or r.current is None:
+        return params, None
+    p, info = calibrate_coil(rig, [r], params)
+    return p, (info or {}).get("values")
 
 
 def _finite(v):
@@ -895,6 +1079,20 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                       f"{nz['r_sensor']:.3g} MU RMS, current noise {nz['r_current'] * 1e3:.3g} mA RMS."]
         lines += ["", f"Cost {cal['cost_before']:.4g} → {cal['cost_after']:.4g} in {cal['evaluations']} evaluations "
                   f"(prediction errors {', '.join(f'{h * 1e3:g}' for h in cal.get('horizons_s', []))} ms ahead)."]
+        coil = res.get("coil_calibration")
+        if coil:
+            lines += ["", "The coil was calibrated first, on the current computed from the actuator signal alone: "
+                      + ", ".join(f"`{n}` = {v:.5g} {units.get(n, '')}" for n, v in coil["values"].items()) + "."]
+        rows = [(s["label"], s.get("own_coil")) for e in res["records"] for s in e["segments"]]
+        rows += [(v["label"], v.get("own_coil")) for v in res["validation"]]
+        rows = [(lb, c) for lb, c in rows if c]
+        if rows:
+            names = list(rows[0][1])
+            lines += ["", "The coil of each segment on its own (the model of that segment uses it: a resistance that "
+                      "follows heating, a drive gain that changes between runs):", "",
+                      "| segment | " + " | ".join(f"{n} [{units.get(n, '')}]" for n in names) + " |",
+                      "|---|" + "---|" * len(names)]
+            lines += [f"| {lb} | " + " | ".join(f"{c[n]:.5g}" for n in names) + " |" for lb, c in rows]
         if res.get("spread"):
             lines += ["", "Each record calibrated on its own (the spread between records):", "",
                       "| parameter | min | max | spread (max − min)/mean |", "|---|---|---|---|"]
@@ -987,8 +1185,6 @@ def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, nois
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .diagnosis import blackbox as bb
-
     r = segs[0]
     written = []
     hs = 0.020
@@ -1068,7 +1264,7 @@ def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, nois
         for a in ax:
             a.axvspan(lo, hi, color="C0", alpha=0.07)
         ax[0].legend(fontsize=8, loc="lower left")
-        fig.suptitle(f"current to gap: {r.label} (shaded: the {lo:g}–{hi:g} Hz band of the figures)")
+        fig.suptitle(f"current to gap: {r.label}\n(shaded: the {lo:g}–{hi:g} Hz band of the figures)", fontsize=11)
         fig.tight_layout()
         p = out / "frequency_response.png"
         fig.savefig(p, dpi=110)
