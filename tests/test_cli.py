@@ -224,3 +224,67 @@ def test_demo_runs_every_stage_and_prints_the_truth_next_to_the_estimate(tmp_pat
               "diagnosis/diagnosis.json", "record_undeclared_effect.csv"):
         assert (tmp_path / f).exists(), f
     assert json.loads((tmp_path / "diagnosis" / "diagnosis.json").read_text())["verdict"] == "explained"
+
+
+def _ce152_csv(path: Path) -> Path:
+    path.write_text("# ts: 0.001\n# controller: pid\nt,w,u,y\n"
+                    + "".join(f"{k / 1000:.3f},0.4,0.5,{0.4 + 1e-3 * (k % 3):.4f}\n" for k in range(1500)))
+    return path
+
+
+def _levitador_session(path: Path, columns: str = "t y y_obs dy_obs i u yd") -> Path:
+    """A small record in the levitador benchmark's second format (Latin-1 header, tabs)."""
+    sig = {"t": lambda k: f"{k * 0.01:.4f}", "y": lambda k: f"{0.005 + 4.888e-5 * (k % 5):.6f}",
+           "y_obs": lambda k: "0.005000", "dy_obs": lambda k: "0.000000", "i": lambda k: "0.4000",
+           "u": lambda k: f"{6 + 0.1 * (k % 7):.4f}", "yd": lambda k: "0.005000"}
+    head = f"# Dataset Levitador Magnético\n# Ts: 0.01s\n# Columnas: {columns}\n#\n"
+    body = "".join("\t".join(sig[c](k) for c in columns.split()) + "\n" for k in range(400))
+    path.write_bytes((head + body).encode("latin-1"))
+    return path
+
+
+@pytest.mark.parametrize("make, args, words", [
+    # a CE152 record given a real rig: said so, with the file, instead of "1 fields, expected 6"
+    (_ce152_csv, ["diagnose", "{f}", "--rig", "inteco-mls2em", "--out", "o"],
+     "{f} is a CE152-format record (docs/record-format.md: '# key: value' metadata, then the header t,w,u,y in "
+     "machine units), not a record of a real rig: --rig inteco-mls2em does not fit it; diagnose it without --rig"),
+    (_ce152_csv, ["calibrate", "{f}", "--rig", "levitador", "--out", "o"], "{f} is a CE152-format record"),
+    # a real rig's record without --rig, or with the CE152's: which --rig it likely needs
+    (_levitador_session, ["diagnose", "{f}", "--out", "o"],
+     "{f} is a text record that declares its columns, a real rig's record: name its rig with --rig (inteco-mls2em, "
+     "levitador, or a rig file, docs/rigs.md); likely --rig levitador (its 10 ms sample time and its travel 0-20.4 "
+     "mm fit the record)"),
+    (_levitador_session, ["diagnose", "{f}", "--rig", "ce152", "--out", "o"],
+     "not a CE152-format record: --rig ce152 does not fit it; likely --rig levitador"),
+    # a column the command needs, missing: refused before anything runs, naming the file and the line
+    (lambda p: _levitador_session(p, "t y i yd"), ["diagnose", "{f}", "--rig", "levitador", "--out", "o"],
+     "{f}:3:13: the header declares no column for the actuator signal (coil voltage or duty) as 'u' or 'drive'"),
+    (lambda p: _levitador_session(p, "t y i u"),
+     ["diagnose", "{f}", "--rig", "levitador", "--controller", "levitador-cascade", "--out", "o"],
+     "no column for the position reference [m] as 'yd' or 'reference' (this command needs the position reference"),
+])
+def test_a_record_that_does_not_fit_the_rig_flag_is_refused_in_one_line(tmp_path, monkeypatch, capsys, make, args, words):
+    from maglev_cosim.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    f = make(tmp_path / "rec.txt")
+    assert main([a.format(f=f) for a in args]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and words.format(f=f) in lines[0] and "Traceback" not in err, err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.skipif(not (Path(__file__).resolve().parent / "real_data.py").exists(), reason="no real_data helper")
+def test_the_shared_inteco_record_without_rig_names_its_likely_rig(monkeypatch, capsys, tmp_path):
+    from real_data import REAL
+
+    f = REAL / "inteco-mls2em" / "results" / "step" / "MPC - KF.mat"
+    if not f.exists():
+        pytest.skip("shared real records not present")
+    from maglev_cosim.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["diagnose", str(f), "--out", "o"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "is an Inteco MATLAB results file, a real rig's record" in err and "likely --rig inteco-mls2em" in err

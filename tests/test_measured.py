@@ -263,3 +263,190 @@ def test_effect_search_on_a_rig_finds_a_planted_force_lag_and_nothing_where_ther
     assert found["parameters"]["T_F"] == pytest.approx(3e-3, rel=0.1)
     none = rigfit.effect_search(rig, [_inteco_record(rig, rig.params, 2)], rig.params)
     assert none["selected"] == [], none["candidates"]
+
+
+# ----------------------------------------------------------------------------- the levitador's sessions
+
+SESSIONS = REAL / "levitador-benchmark" / "data" / "sesiones_kan_pinn"
+SESSION_COLUMNS = "t y y_obs dy_obs i u yd"
+
+
+def _session(path: Path, *, columns: str = SESSION_COLUMNS, n: int = 300, encoding: str = "latin-1",
+             samples: int | None = None, ts_line: str = "0.01s", sep: str = "\t") -> dict[str, np.ndarray]:
+    """A small file in the benchmark's second format: its Latin-1 header (accents in the title and
+    keys), '# Columnas:' declaring the columns in the given order, tab-separated rows printed as
+    the benchmark prints them. Returns the signals by column name."""
+    t = np.arange(n) * 0.01
+    sig = {"t": t, "y": np.round((0.005 + 5e-4 * np.sin(3 * t)) / 4.888e-5) * 4.888e-5,
+           "y_obs": np.full(n, 0.005), "dy_obs": np.full(n, 0.01), "i": 0.4 + 0.01 * np.cos(3 * t),
+           "u": 6.0 + 0.5 * np.sin(5 * t), "yd": np.where(t < 1.5, 0.005, 0.004), "mode": np.ones(n)}
+    sig["gap"] = sig["y"]
+    head = (f"# Dataset Levitador Magnético\n# Fecha: 2025-12-17T20:59:28.539829\n# Perfil: escalon\n"
+            f"# Duración: {n * 0.01:.1f}s\n# Muestras: {n if samples is None else samples}\n# Ts: {ts_line}\n"
+            f"# Parámetros modelo: k0=0.0704, k=0.0327, a=0.0052, R=2.72\n# Columnas: {columns}\n#\n")
+    digits = {"t": 4, "i": 4, "u": 4, "mode": 0}
+    rows = [sep.join(f"{sig[c][k]:.{digits.get(c, 6)}f}" for c in columns.split()) for k in range(n)]
+    path.write_bytes((head + "\n".join(rows) + "\n").encode(encoding))
+    return sig
+
+
+def test_session_format_is_read_as_published(tmp_path):
+    """Latin-1 header, tabs, 'Columnas:' declaring t y y_obs dy_obs i u yd: each signal in its place,
+    the measured y (not the observer's y_obs) as the position, the encoding said."""
+    f = tmp_path / "dataset_escalon_x.txt"
+    sig = _session(f)
+    with pytest.raises(UnicodeDecodeError):
+        f.read_text(encoding="utf-8")
+    m = read_measured(f)
+    assert m.fmt == "columns" and m.n == 300 and m.ts == pytest.approx(0.01) and m.drive_unit == ""
+    assert np.allclose(m.position, sig["y"], atol=1e-6) and not np.allclose(m.position, m.extra["y_obs"])
+    assert np.allclose(m.current, sig["i"], atol=1e-4) and np.allclose(m.drive, sig["u"], atol=1e-4)
+    assert np.allclose(m.reference, sig["yd"]) and set(m.extra) == {"y_obs", "dy_obs"}
+    assert m.metadata["encoding"] == "latin-1" and m.metadata["Perfil"] == "escalon"
+    assert m.metadata["Parámetros modelo"].startswith("k0=0.0704") and m.metadata["title"] == "Dataset Levitador Magnético"
+    assert len(m.warnings) == 1 and "read as Latin-1" in m.warnings[0] and "only '#' header lines" in m.warnings[0]
+    # the same content in UTF-8: no warning; and the format is told by the content, not the name
+    g = tmp_path / "record.mat"
+    _session(g, encoding="utf-8")
+    from maglev_cosim.measured import sniff
+
+    assert sniff(g) == "columns" and sniff(f) == "columns"
+    m2 = read_measured(g)
+    assert m2.metadata["encoding"] == "utf-8" and m2.warnings == [] and np.array_equal(m2.position, m.position)
+
+
+def test_session_format_takes_any_declared_order_and_ignores_unknown_columns(tmp_path):
+    f = tmp_path / "a.txt"
+    sig = _session(f, columns="yd u mode i dy_obs y_obs y t")
+    m = read_measured(f)
+    assert np.allclose(m.position, sig["y"], atol=1e-6) and np.allclose(m.drive, sig["u"], atol=1e-4)
+    assert np.allclose(m.t, sig["t"]) and np.allclose(m.reference, sig["yd"]) and "mode" not in m.extra
+    assert any("unknown column(s) 'mode' (column 3) ignored" in w for w in m.warnings), m.warnings
+    # a first line of names instead of '# Columnas:', blanks between the fields
+    g = tmp_path / "b.txt"
+    g.write_text("t y i u yd\n" + "".join(f"{k * 0.01:.2f} {0.005 + 1e-4 * (k % 3):.6f} 0.4 6.0 0.005\n"
+                                          for k in range(200)))
+    m = read_measured(g)
+    assert m.fmt == "columns" and m.n == 200 and m.position[1] == pytest.approx(0.0051)
+    # commas, given the '# columns:' line, and the declared names once more as a first line
+    h = tmp_path / "c.csv"
+    h.write_text("# columns: t, u, y\n# ts: 10 ms\nt,u,y\n" + "".join(f"{k * 0.01:.2f},6.0,{0.005 + 1e-4 * (k % 3):.6f}\n"
+                                                                 for k in range(200)))
+    m = read_measured(h)
+    assert m.n == 200 and m.position[2] == pytest.approx(0.0052) and m.drive[0] == 6.0 and m.current is None
+
+
+@pytest.mark.parametrize("columns, require, where, words", [
+    ("t y_obs dy_obs i u yd", (), ":8:13:", "no column for the measured position [m] as 'y' or 'position' or 'gap'"),
+    ("y i u yd", (), ":8:13:", "no column for the time [s] as 't' or 'time'"),
+    ("t y y_obs dy_obs i yd", ("drive",), ":8:13:", "the actuator signal (coil voltage or duty) as 'u'"),
+    ("t y i u y yd", (), ":8:21:", "column 'y' is declared twice"),
+    ("t y gap i u yd", (), ":8:17:", "columns 'y' and 'gap' both hold the measured position"),
+])
+def test_session_format_refuses_missing_or_doubled_columns_naming_them(tmp_path, columns, require, where, words):
+    f = tmp_path / "s.txt"
+    _session(f, columns=columns)
+    with pytest.raises(RecordError) as e:
+        read_measured(f, require=require)
+    assert f"{f}{where}" in str(e.value) and words in str(e.value), str(e.value)
+
+
+def test_session_format_without_the_drive_reads_until_a_command_needs_it(tmp_path):
+    f = tmp_path / "s.txt"
+    _session(f, columns="t y i yd")
+    m = read_measured(f)
+    assert m.drive is None and m.current is not None
+    f2 = tmp_path / "s2.txt"
+    _session(f2, columns="t y u")
+    m = read_measured(f2)
+    assert m.current is None and m.reference is None and any("no coil current column" in w for w in m.warnings)
+
+
+@pytest.mark.parametrize("edit, where, what", [
+    (lambda rows: rows.replace("\t0.4", "\tx.4", 1), ":10:35:", "column 'i' (current): 'x.4100' is not a number"),
+    (lambda rows: rows.replace("\n0.0100\t", "\n0.0100\t0.1\t", 1), ":11:", "8 fields"),
+    (lambda rows: rows.replace("\t0.010000", "", 1), ":10:", "6 fields, the header (line 8) declares 7"),
+    (lambda rows: rows.replace("# Ts: 0.01s", "# Ts: 0.001s"), ":6:7:", "sample time 0.001s disagrees with the time column"),
+    (lambda rows: rows.replace("# Ts: 0.01s", "# Ts: fast"), ":6:7:", "'fast' is not a positive time"),
+    (lambda rows: rows.replace("\n0.0200\t0.005", "\n0.0200\t5.005", 1), ":12:8:", "is it in mm rather than m"),
+])
+def test_session_format_errors_name_file_line_and_column(tmp_path, edit, where, what):
+    f = tmp_path / "s.txt"
+    _session(f)
+    f.write_bytes(edit(f.read_bytes().decode("latin-1")).encode("latin-1"))
+    with pytest.raises(RecordError) as e:
+        read_measured(f)
+    assert f"{f}{where}" in str(e.value) and what in str(e.value), str(e.value)
+
+
+def test_session_format_counts_and_the_ce152_format_is_told_apart(tmp_path):
+    f = tmp_path / "s.txt"
+    _session(f, samples=2989)
+    assert any("line 5 says 2989 samples, the file holds 300 data lines" in w for w in read_measured(f).warnings)
+    from maglev_cosim.measured import sniff
+
+    ce = tmp_path / "rec.txt"
+    ce.write_text("# ts: 0.001\n# controller: pid\nt,w,u,y\n" + "".join(f"{k / 1000:.3f},0.4,0.5,0.4\n" for k in range(300)))
+    assert sniff(ce) == "ce152"
+    with pytest.raises(RecordError, match=r"rec.txt:3:1: a CE152-format record"):
+        read_measured(ce)
+    legacy = tmp_path / "legacy.csv"
+    legacy.write_text("".join(f"{k / 100:.2f} 0.005 {0.0096 + 1e-4 * (k % 2):.4f} 0.827 0.04 9.86\n" for k in range(300)))
+    assert sniff(legacy) == "levitador" and read_measured(legacy).fmt == "levitador"
+    assert sniff(tmp_path / "none.txt") is None
+
+
+need_session = pytest.mark.skipif(not sorted(SESSIONS.glob("dataset_*.txt")), reason="shared session records not present")
+
+
+@need_session
+def test_every_shared_session_reads_as_published():
+    files = sorted(SESSIONS.glob("dataset_*.txt"))
+    for f in files:
+        m = read_measured(f)
+        assert m.fmt == "columns" and m.ts == pytest.approx(0.01) and m.metadata["encoding"] in ("latin-1", "utf-8")
+        assert m.metadata["columns"] == SESSION_COLUMNS and {"y_obs", "dy_obs"} <= set(m.extra)
+        assert 0.0 <= m.position.min() and m.position.max() < 0.0215 and m.current.max() < 1.0
+        assert 0.0 <= m.drive.min() and m.drive.max() <= 9.86 and 0.003 <= m.reference.min() <= m.reference.max() <= 0.007
+        head = f.read_bytes().split(b"\n")
+        assert int(m.metadata["Muestras"]) == m.n == sum(1 for ln in head if ln.strip() and not ln.startswith(b"#"))
+    step = [f for f in files if "escalon" in f.name]
+    if step:
+        m = read_measured(step[0])
+        assert m.n == 2989 and set(np.unique(m.reference)) == {0.004, 0.005}
+        assert m.warnings and "Latin-1" in m.warnings[0]
+
+
+@need_session
+def test_diagnose_the_shared_step_session_on_the_levitador_rig(tmp_path, capsys):
+    """The second format through the levitador rig path, with the benchmark's cascade declared: the
+    verdict's reasons are the file's (100 Hz, 0.05 mm steps), and the firmware cascade, started from
+    rest, reproduces the recorded voltage (it cannot be checked loop by loop: no current reference)."""
+    from maglev_cosim.cli import main
+
+    (f,) = sorted(SESSIONS.glob("dataset_escalon_*.txt"))[:1]
+    assert main(["diagnose", str(f), "--rig", "levitador", "--controller", "levitador-cascade",
+                 "--out", str(tmp_path)]) == 0
+    d = json.loads((tmp_path / "diagnosis.json").read_text())
+    assert d["verdict"] == "too little information"
+    assert any(r.startswith("sampled every 10 ms") for r in d["reasons"])
+    (rec,) = d["records"]
+    assert len(rec["segments"]) == 1 and rec["segments"][0]["after"]["samples"] > 2500
+    cc = rec["controller_check"]
+    assert cc["start"] == "rest" and cc["actuator_fit"] > 50 and cc["loops"] == {}
+    assert any("reproduces the recorded actuator signal" in r for r in d["reasons"])
+    assert "Latin-1" in capsys.readouterr().err
+
+
+@need_real
+def test_formats_are_told_by_content_not_by_name(tmp_path):
+    import shutil
+
+    from maglev_cosim.measured import sniff
+
+    mat = tmp_path / "inteco_run.bin"          # a MATLAB level-4 file (no text header) under another name
+    shutil.copy(INTECO / "step" / "MPC - KF.mat", mat)
+    assert sniff(mat) == "inteco-mat" and read_measured(mat).fmt == "inteco-mat"
+    txt = tmp_path / "levitador.mat"           # the levitador's first format under a MATLAB name
+    shutil.copy(LEVITADOR, txt)
+    assert sniff(txt) == "levitador" and read_measured(txt).n == read_levitador(LEVITADOR).n

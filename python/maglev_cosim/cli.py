@@ -272,20 +272,76 @@ def _load(path: str, implausible: bool = False):
 
 
 def _is_measured(path: str) -> bool:
-    """A real rig's published record (an Inteco .mat, the levitador text) rather than the record format."""
-    p = Path(path)
-    if p.suffix.lower() == ".mat":
-        return True
+    """A real rig's published record (an Inteco .mat, a levitador text, a text record that declares
+    its columns) rather than the CE152 record format; told from the content (``measured.sniff``)."""
+    from .measured import MEASURED_FORMATS, sniff
+
+    fmt = sniff(path)
+    return fmt in MEASURED_FORMATS or (fmt is None and Path(path).suffix.lower() == ".mat")
+
+
+_FORMAT_WORDS = {"inteco-mat": "an Inteco MATLAB results file", "levitador": "a levitador benchmark text record",
+                 "columns": "a text record that declares its columns"}
+
+
+def _likely_rig(path: str) -> str:
+    """``"; likely --rig NAME (...)"`` when exactly one shipped real rig fits the record's sample time
+    and travel (most positions between its stops), else ``""``. Reads the record (cheap); a record
+    that cannot be read gets ``""`` and its error comes later."""
+    from .measured import read_measured
+    from .rigs import SHIPPED, load_rig
+
     try:
-        with p.open("rb") as fh:
-            head = fh.read(4096).decode("utf-8", "replace")
-    except OSError:
-        return False
-    first = next((ln for ln in head.splitlines() if ln.strip()), "")
-    return not first.lstrip().startswith("#") and len(first.split()) == 6 and "," not in first
+        m = read_measured(path)
+    except Exception:  # the read error itself is reported where the record is used
+        return ""
+    fits = []
+    for name in SHIPPED:
+        if name == "ce152":
+            continue
+        rig = load_rig(name)
+        lo, hi = rig.stops
+        inside = float(np.mean((m.position >= lo - 1e-3) & (m.position <= hi + 1e-3)))
+        if abs(m.ts - rig.ts) <= 1e-3 * rig.ts and inside > 0.9:
+            fits.append(rig)
+    if len(fits) != 1:
+        return ""
+    rig = fits[0]
+    return (f"; likely --rig {rig.name} (its {rig.ts * 1e3:g} ms sample time and its travel "
+            f"{rig.stops[0] * 1e3:g}-{rig.stops[1] * 1e3:g} mm fit the record)")
+
+
+def _check_rig_records(paths, rig: str | None, require=(), resample: bool = False) -> None:
+    """Refuses, in one line naming the file, a record that does not fit ``--rig``: a CE152-format
+    record given a real rig, a real rig's record given none or ``ce152``; then reads each real
+    record once, so that a missing column (``require``: the drive, the reference of a declared
+    controller) is refused before anything runs."""
+    from .measured import read_measured, sniff
+
+    for path in paths:
+        fmt = sniff(path)
+        if fmt == "ce152" and rig not in (None, "ce152"):
+            raise CliError(f"{path} is a CE152-format record (docs/record-format.md: '# key: value' metadata, then "
+                           f"the header t,w,u,y in machine units), not a record of a real rig: --rig {rig} does not "
+                           "fit it; diagnose it without --rig")
+        if _is_measured(path) and rig in (None, "ce152"):
+            what = _FORMAT_WORDS.get(fmt, "a real rig's record")
+            if rig is None:
+                raise CliError(f"{path} is {what}, a real rig's record: name its rig with --rig (inteco-mls2em, "
+                               f"levitador, or a rig file, docs/rigs.md){_likely_rig(path)}")
+            raise CliError(f"{path} is {what}, not a CE152-format record: --rig ce152 does not fit it"
+                           f"{_likely_rig(path)}")
+        if rig not in (None, "ce152"):
+            read_measured(path, require=require, resample=resample)
 
 
 def _print_rig_result(res: dict) -> None:
+    said = set()
+    for e in [*res["records"], *res["validation"]]:     # a validation record: once per segment
+        for w in e.get("warnings", []):
+            if (e["file"], w) not in said:
+                said.add((e["file"], w))
+                print(f"warning: {e['file']}: {w}", file=sys.stderr)
     print(f"verdict: {res['verdict']}")
     for r in res["reasons"]:
         print(f"  {r}")
@@ -351,6 +407,8 @@ def cmd_calibrate(a: argparse.Namespace) -> dict:
     from .rigs import load_rig
 
     rig = load_rig(a.rig)
+    _check_rig_records([*a.records, *(a.validate or ())], a.rig,
+                       require=("drive", "reference") if a.controller else ("drive",), resample=a.resample)
     res = run(rig, a.records, a.out, validate=a.validate or (), resample=a.resample, progress=_progress,
               controller=_controller_file(a, rig))
     _print_rig_result(res)
@@ -378,10 +436,9 @@ def cmd_diagnose(a: argparse.Namespace) -> dict:
         from .rigfit import run
         from .rigs import load_rig
 
-        if a.rig is None:
-            raise CliError(f"{a.record} is a real rig's record: name its rig with --rig (inteco-mls2em, levitador, "
-                           "or a rig file)")
-        rig = load_rig(a.rig)
+        rig = load_rig(a.rig) if a.rig not in (None, "ce152") else None
+        _check_rig_records([a.record], a.rig, require=("drive", "reference") if a.controller else ("drive",),
+                           resample=a.resample)
         res = run(rig, [a.record], a.out, resample=a.resample, per_record=False, progress=_progress,
                   json_name="diagnosis.json", controller=_controller_file(a, rig))
         _print_rig_result(res)
@@ -616,7 +673,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="diagnose a record that looks physically implausible (constant or saturated signals, "
                         "the ball on a stop for most of it) with warnings in the report, instead of refusing it")
     s.add_argument("--rig", default=None, help="the rig of a real record: a shipped rig (ce152, inteco-mls2em, "
-                   "levitador) or a rig file (docs/rigs.md); an Inteco .mat or levitador text needs it")
+                   "levitador) or a rig file (docs/rigs.md); a real rig's record (an Inteco .mat, a levitador "
+                   "text, a text record declaring its columns: docs/bringing-your-rig.md) needs it")
     s.add_argument("--controller", default=None, help="the record's controller, declared in a controller file "
                    "(docs/controllers.md) or shipped (levitador-cascade, inteco-lqi): checked against the recorded "
                    "actuator signal and replayed in closed loop; without it the controller is treated as unknown")
@@ -636,7 +694,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("calibrate", help="one parameter set for a rig on several real records: per-record fit, "
                        "parameter spread, validation on records not used")
-    s.add_argument("records", nargs="+", help="real records (Inteco .mat, levitador text)")
+    s.add_argument("records", nargs="+", help="real records (Inteco .mat, levitador text, a text record "
+                   "declaring its columns: docs/bringing-your-rig.md)")
     s.add_argument("--rig", required=True, help="shipped rig name or rig file (docs/rigs.md)")
     s.add_argument("--out", required=True, help="output folder")
     s.add_argument("--validate", action="append", metavar="FILE", help="a record to judge the calibration on, "
