@@ -292,7 +292,9 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     base = np.array([getattr(p0, n) for n in names])
     additive = np.array([n in ("u_0", "x_0") for n in names])
     effect_bound = {e[1]: e[4][1] for e in RIG_EFFECTS}
-    absolute = np.array([b == 0 and n in effect_bound for n, b in zip(names, base)])
+    # an effect parameter is searched over its catalogue range (not by factors of its start: a lag
+    # found at 1 ms by the effect search may belong at 3 ms once the rest moves with it)
+    absolute = np.array([n in effect_bound for n in names])
     free = NOISE if fit_noise else ()
     lo = np.concatenate([np.where(additive, -1.0, np.where(absolute, 0.0, 0.5)), np.full(len(free), -4.0)])
     hi = np.concatenate([np.where(additive, 1.0, np.where(absolute, [effect_bound.get(n, 1.0) for n in names], 2.0)),
@@ -300,7 +302,8 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     # an effect parameter that is off starts inside its range (the middle of its catalogue grid):
     # on its lower bound the fit would start where a lag's switch-on makes the cost jump
     effect_start = {e[1]: e[3][len(e[3]) // 2] for e in RIG_EFFECTS}
-    z0 = np.concatenate([np.where(additive, 0.0, np.where(absolute, [effect_start.get(n, 0.0) for n in names], 1.0)),
+    z0 = np.concatenate([np.where(additive, 0.0, np.where(absolute, [b if b > 0 else effect_start.get(n, 0.0)
+                                                                      for n, b in zip(names, base)], 1.0)),
                          np.zeros(len(free))])
     scale = np.concatenate([np.where(absolute, 0.1 * hi[: len(names)], 0.1), np.ones(len(free))])
     evals = [0]
