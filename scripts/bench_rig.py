@@ -66,13 +66,7 @@ def section(res: dict, command: str, wall_s: float) -> str:
              "(physics with its effects and its calibrated disturbance model, driven by the measured PWM duty), "
              "the black-box baseline (one ridge regression per horizon on the last 30 ms of gap differences and "
              "the measured current and its square up to the predicted instant, fitted by the tool on the three "
-             "calibration records) and 'constant velocity'.", "",
-             "| records | horizon | model | black box | constant velocity |", "|---|---|---|---|---|"]
-    for role, c in comp.items():
-        for h, v in c.items():
-            if h != "segments":
-                lines.append(f"| {role} ({c['segments']}) | {h} | " + " | ".join(
-                    f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in ("model", "black_box", "constant_velocity")) + " |")
+             "calibration records) and 'constant velocity'.", "", *rigfit.comparison_table(comp)]
     lines += ["", "Per segment: the current from the PWM duty (fit %), and the skill of model / black box at each "
               "horizon.", "", "| segment | role | current from PWM | 5 ms | 20 ms | 50 ms |", "|---|---|---|---|---|---|"]
     rows = [(s["label"], "calibration", s["after"]) for e in res["records"] for s in e["segments"]]

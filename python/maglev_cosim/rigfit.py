@@ -680,6 +680,18 @@ def comparison(calibration: Sequence[dict], validation: Sequence[dict]) -> dict:
     return out
 
 
+def comparison_table(comp: dict) -> list[str]:
+    """The Markdown table of :func:`comparison`: one row per role and horizon, the median skill
+    (worst in brackets) of the model, the black box and "constant velocity"."""
+    lines = ["| records | horizon | model | black box | constant velocity |", "|---|---|---|---|---|"]
+    for role, c in comp.items():
+        for h, v in c.items():
+            if h != "segments":
+                lines.append(f"| {role} ({c['segments']}) | {h} | " + " | ".join(
+                    f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in ("model", "black_box", "constant_velocity")) + " |")
+    return lines
+
+
 def judge_against_black_box(verdict: str, comp: dict) -> tuple[str, list[str]]:
     """A model that predicts the gap worse than the black-box baseline (median skill, on the
     validation segments when there are any, else the calibration ones) at some horizon does not
@@ -1159,13 +1171,7 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                   "per horizon on the last 30 ms of gap differences and the measured current and its square up to "
                   "the predicted instant, fitted by the tool on the same calibration segments) and 'constant "
                   "velocity'. Higher is better; > 0 beats 'stays put'.", "",
-                  "| segments | horizon | model | black box | constant velocity |", "|---|---|---|---|---|"]
-        for role, c in comp.items():
-            for h, v in c.items():
-                if h == "segments":
-                    continue
-                lines.append(f"| {role} ({c['segments']}) | {h} | " + " | ".join(
-                    f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in ("model", "black_box", "constant_velocity")) + " |")
+                  *comparison_table(comp)]
         lines.append("")
     cal = res.get("calibration")
     if cal:
