@@ -1,8 +1,10 @@
-/* FMI 3.0 co-simulation entry points for the CE152 plant (maglev_plant.c). The instance logic is
- * maglev_fmi_common.c, shared with the FMI 2.0 glue (maglev_fmu.c); this file maps the FMI 3.0 calls
- * onto it. No event mode, no clocks, no structural parameters, no intermediate update: those calls
- * return fmi3Error with a message. The independent variable time has the value reference after the
- * plant's table (MAGLEV_NVARS), as modelDescription3.xml says. */
+/* FMI 3.0 co-simulation entry points of every model: the plant (maglev_plant_fmu.c, build/maglev3.fmu)
+ * and the PID controller (maglev_pid_fmu.c, build/maglev_pid3.fmu), whichever this binary links as
+ * maglev_fmu_model. The instance logic is maglev_fmi_common.c, shared with the FMI 2.0 entry points
+ * (maglev_fmu.c); this file maps the FMI 3.0 calls onto it. No event mode, no clocks, no structural
+ * parameters, no intermediate update: those calls return fmi3Error with a message. The independent
+ * variable time has the value reference after the model's table (its nvars), as modelDescription3.xml
+ * and modelDescription_pid3.xml say. */
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -10,8 +12,6 @@
 
 #include "fmi3Functions.h"
 #include "maglev_fmi_common.h"
-
-#define VR_TIME ((unsigned int)MAGLEV_NVARS)
 
 typedef struct {
     MfInstance base; /* first: an MfInstance* is a Fmu3* */
@@ -60,9 +60,10 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
         emit(logMessage, instanceEnvironment, "%s: instanceName must be a non-empty string", fn);
         return NULL;
     }
-    if (!instantiationToken || strcmp(instantiationToken, MAGLEV_GUID) != 0) {
+    const MfModel *model = &maglev_fmu_model;
+    if (!instantiationToken || strcmp(instantiationToken, model->guid) != 0) {
         emit(logMessage, instanceEnvironment, "%s: instantiationToken %s does not match %s", fn,
-             instantiationToken ? instantiationToken : "(null)", MAGLEV_GUID);
+             instantiationToken ? instantiationToken : "(null)", model->guid);
         return NULL;
     }
     if (eventModeUsed) {
@@ -84,13 +85,13 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     f->env = instanceEnvironment;
     f->logger = logMessage;
     char msg[MAGLEV_MSG_LEN];
-    if (mf_init(&f->base, instanceName, loggingOn, fmu3_log, &maglev_std_allocator, VR_TIME, resourcePath, msg,
-                sizeof msg)) {
+    if (mf_init(&f->base, model, instanceName, loggingOn, fmu3_log, &maglev_std_allocator, model->nvars,
+                resourcePath, msg, sizeof msg)) {
         emit(logMessage, instanceEnvironment, "%s: %s", fn, msg);
         free(f);
         return NULL;
     }
-    mf_log(&f->base, MF_OK, "logCalls", "%s: %s", fn, MAGLEV_GUID);
+    mf_log(&f->base, MF_OK, "logCalls", "%s: %s", fn, model->guid);
     return f;
 }
 
@@ -388,13 +389,13 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
     if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
     if (terminateSimulation) *terminateSimulation = fmi3False;
     if (earlyReturn) *earlyReturn = fmi3False;
-    if (lastSuccessfulTime && instance) *lastSuccessfulTime = F(instance)->plant.time;
+    if (lastSuccessfulTime && instance) *lastSuccessfulTime = mf_time(F(instance));
     GUARD("fmi3DoStep", MF_STEP_COMPLETE);
     if (!eventHandlingNeeded || !terminateSimulation || !earlyReturn || !lastSuccessfulTime)
         return (fmi3Status)mf_error(F(instance), "fmi3DoStep: an output argument (eventHandlingNeeded, "
                                     "terminateSimulation, earlyReturn, lastSuccessfulTime) is NULL");
     int rc = mf_do_step(F(instance), "fmi3DoStep", currentCommunicationPoint, communicationStepSize);
-    *lastSuccessfulTime = F(instance)->plant.time; /* a refused step leaves it where it was */
+    *lastSuccessfulTime = mf_time(F(instance)); /* a refused step leaves it where it was */
     return (fmi3Status)rc;
 }
 

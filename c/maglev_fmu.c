@@ -1,6 +1,7 @@
-/* FMI 2.0 co-simulation entry points for the CE152 plant (maglev_plant.c). The instance logic is
- * maglev_fmi_common.c, shared with the FMI 3.0 glue (maglev_fmi3.c); this file maps the FMI 2.0
- * calls onto it. */
+/* FMI 2.0 co-simulation entry points of every model: the plant (maglev_plant_fmu.c, build/maglev.fmu)
+ * and the PID controller (maglev_pid_fmu.c, build/maglev_pid.fmu), whichever this binary links as
+ * maglev_fmu_model. The instance logic is maglev_fmi_common.c, shared with the FMI 3.0 entry points
+ * (maglev_fmi3.c); this file maps the FMI 2.0 calls onto it. */
 #include <stdarg.h>
 #include <stdio.h>
 #include <string.h>
@@ -76,15 +77,16 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         emit(functions, nm, "fmi2Instantiate: this FMU supports co-simulation only (fmuType = %d)", (int)fmuType);
         return NULL;
     }
+    const MfModel *model = &maglev_fmu_model;
     char dir[4096], msg[MAGLEV_MSG_LEN], guid[80];
     const char *resources = fmuResourceLocation && !mf_uri_to_path(fmuResourceLocation, dir, sizeof dir) ? dir : NULL;
-    if (mf_accepted_guid(resources, guid, sizeof guid, msg, sizeof msg)) {
+    if (mf_accepted_guid(model, resources, guid, sizeof guid, msg, sizeof msg)) {
         emit(functions, nm, "fmi2Instantiate: %s", msg);
         return NULL;
     }
     if (!fmuGUID || strcmp(fmuGUID, guid) != 0) {
         emit(functions, nm, "fmi2Instantiate: GUID %s does not match %s%s", fmuGUID ? fmuGUID : "(null)", guid,
-             strcmp(guid, MAGLEV_GUID) ? " (issued in resources/guid.txt)" : "");
+             strcmp(guid, model->guid) ? " (issued in resources/guid.txt)" : "");
         return NULL;
     }
     Fmu *f = functions->allocateMemory(1, sizeof *f);
@@ -94,7 +96,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     }
     f->cb = *functions;
     MaglevAllocator alloc = {fmu_alloc, fmu_release, f};
-    if (mf_init(&f->base, instanceName, loggingOn, fmu_log, &alloc, MF_NO_TIME_VR, resources, msg, sizeof msg)) {
+    if (mf_init(&f->base, model, instanceName, loggingOn, fmu_log, &alloc, MF_NO_TIME_VR, resources, msg,
+                sizeof msg)) {
         emit(functions, nm, "fmi2Instantiate: %s", msg);
         functions->freeMemory(f);
         return NULL;
@@ -260,7 +263,7 @@ fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *
     if (!value) return (fmi2Status)mf_error(F(c), "fmi2GetRealStatus: value is NULL");
     if (s != fmi2LastSuccessfulTime)
         return (fmi2Status)mf_error(F(c), "fmi2GetRealStatus: status kind %d not available", (int)s);
-    *value = F(c)->plant.time;
+    *value = mf_time(F(c));
     return fmi2OK;
 }
 
@@ -295,4 +298,38 @@ static fmi2Status me_only(fmi2Component c, const char *fn) {
     return (fmi2Status)mf_error(F(c), "%s: this FMU is co-simulation only", fn);
 }
 
-#include "maglev_fmi2_me_stubs.h"
+fmi2Status fmi2EnterEventMode(fmi2Component c) { return me_only(c, "fmi2EnterEventMode"); }
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
+    (void)info;
+    return me_only(c, "fmi2NewDiscreteStates");
+}
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) { return me_only(c, "fmi2EnterContinuousTimeMode"); }
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation) {
+    (void)noSetFMUStatePriorToCurrentPoint; (void)enterEventMode; (void)terminateSimulation;
+    return me_only(c, "fmi2CompletedIntegratorStep");
+}
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
+    (void)time;
+    return me_only(c, "fmi2SetTime");
+}
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
+    (void)x; (void)nx;
+    return me_only(c, "fmi2SetContinuousStates");
+}
+fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx) {
+    (void)derivatives; (void)nx;
+    return me_only(c, "fmi2GetDerivatives");
+}
+fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
+    (void)eventIndicators; (void)ni;
+    return me_only(c, "fmi2GetEventIndicators");
+}
+fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
+    (void)x; (void)nx;
+    return me_only(c, "fmi2GetContinuousStates");
+}
+fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component c, fmi2Real x_nominal[], size_t nx) {
+    (void)x_nominal; (void)nx;
+    return me_only(c, "fmi2GetNominalsOfContinuousStates");
+}

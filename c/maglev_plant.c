@@ -1071,7 +1071,7 @@ size_t maglev_serialized_size(const MaglevPlant *m) {
     return ser_header() + (MAGLEV_NPARAMS + SER_NSTATE + MAGLEV_TAG_NVALUES) * 8 + 4 + 4 + m->hist.len * 16 + 8;
 }
 
-static unsigned long long fnv1a(const unsigned char *b, size_t n) {
+unsigned long long maglev_checksum(const unsigned char *b, size_t n) {
     unsigned long long h = 1469598103934665603ULL;
     for (size_t k = 0; k < n; k++) {
         h ^= b[k];
@@ -1111,7 +1111,7 @@ void maglev_serialize(const MaglevPlant *m, const MaglevTag *tag, unsigned char 
         b = put(b, &m->hist.t[k], 8);
         b = put(b, &m->hist.u[k], 8);
     }
-    unsigned long long sum = fnv1a(buf, (size_t)(b - buf));
+    unsigned long long sum = maglev_checksum(buf, (size_t)(b - buf));
     put(b, &sum, 8);
 }
 
@@ -1139,7 +1139,7 @@ int maglev_deserialize(MaglevPlant *m, MaglevTag *tag, const unsigned char *buf,
     size_t need = maglev_serialized_size(&tmp);
     if (size != need) return fail(msg, len, "serialized state has %zu bytes, expected %zu (truncated or padded)", size, need);
     get(buf + size - 8, &sum, 8);
-    if (sum != fnv1a(buf, size - 8)) return fail(msg, len, "serialized state is corrupted (checksum mismatch)");
+    if (sum != maglev_checksum(buf, size - 8)) return fail(msg, len, "serialized state is corrupted (checksum mismatch)");
     if (initialized != 0 && initialized != 1) return fail(msg, len, "serialized state has an invalid initialized flag");
     double st[SER_NSTATE];
     b = get(b, tmp.p, sizeof tmp.p);

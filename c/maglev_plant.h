@@ -220,6 +220,10 @@ void maglev_serialize(const MaglevPlant *m, const MaglevTag *tag, unsigned char 
 int maglev_deserialize(MaglevPlant *m, MaglevTag *tag, const unsigned char *buf, size_t size,
                        const MaglevAllocator *a, char *msg, size_t msglen);
 
+/* The 64-bit FNV-1a checksum that ends a serialized image (the plant's, and the PID controller FMU's in
+ * maglev_pid_fmu.c): it catches accidents, not edits. */
+unsigned long long maglev_checksum(const unsigned char *buf, size_t n);
+
 /* malloc/free allocator for users outside an FMU (tests, the fast path). */
 extern const MaglevAllocator maglev_std_allocator;
 

@@ -2,7 +2,7 @@
 # Sets up everything from a fresh clone: .venv with the package installed from source (`pip install .`:
 # scikit-build-core runs CMake, so the installed package carries the FMU, the C sources and the
 # fast-path library) plus the test tools, and the CMake build in build/ (build/maglev.fmu, build/maglev3.fmu,
-# build/maglev_pid.fmu, C tests), then the closed loop build/maglev_loop.ssp and build/maglev_loop.fmu.
+# build/maglev_pid.fmu, build/maglev_pid3.fmu, C tests), then the closed loop build/maglev_loop.ssp and build/maglev_loop.fmu.
 # Needs only python3 (with venv), gcc and cmake. Safe to run again: it reinstalls the package only
 # when its sources changed (a hash of pyproject.toml, CMakeLists.txt, modelDescription.xml, c/, python/).
 set -euo pipefail
@@ -63,7 +63,8 @@ pip_quiet() {  # pip, quiet, without the warnings about unreachable extra packag
   return "${PIPESTATUS[0]}"
 }
 sources_hash() {
-  find pyproject.toml CMakeLists.txt modelDescription.xml modelDescription3.xml modelDescription_pid.xml c python -type f \
+  find pyproject.toml CMakeLists.txt modelDescription.xml modelDescription3.xml modelDescription_pid.xml \
+       modelDescription_pid3.xml c python -type f \
        \( -name '*.py' -o -name '*.c' -o -name '*.h' -o -name '*.toml' -o -name '*.txt' -o -name '*.xml' \) \
        -not -path '*/__pycache__/*' -print0 | LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1
 }
@@ -85,10 +86,10 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     || { echo "[setup] package installation failed" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi
-echo "[setup] building build/maglev.fmu, build/maglev3.fmu and the C tests with CMake"
+echo "[setup] building build/maglev.fmu, build/maglev3.fmu, build/maglev_pid.fmu, build/maglev_pid3.fmu and the C tests with CMake"
 cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build build --parallel 2 >/dev/null
-test -f build/maglev.fmu && test -f build/maglev3.fmu && test -f build/maglev_pid.fmu
+test -f build/maglev.fmu && test -f build/maglev3.fmu && test -f build/maglev_pid.fmu && test -f build/maglev_pid3.fmu
 echo "[setup] writing the closed loop: build/maglev_loop.ssp and build/maglev_loop.fmu (container)"
 .venv/bin/python -m maglev_cosim.loopfmu build >/dev/null
 test -f build/maglev_loop.ssp && test -f build/maglev_loop.fmu

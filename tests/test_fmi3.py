@@ -62,7 +62,7 @@ def test_archive_holds_the_fmi3_binary_and_buildable_sources(fmu3):
     names = set(zipfile.ZipFile(fmu3).namelist())
     assert {"modelDescription.xml", "binaries/x86_64-linux/maglev.so", "sources/buildDescription.xml"} <= names
     bd = zipfile.ZipFile(fmu3).read("sources/buildDescription.xml").decode()
-    for f in ("maglev_fmi3.c", "maglev_fmi_common.c", "maglev_plant.c"):
+    for f in ("maglev_fmi3.c", "maglev_fmi_common.c", "maglev_plant_fmu.c", "maglev_plant.c"):
         assert f'name="{f}"' in bd and f"sources/{f}" in names
     assert {"sources/maglev_plant.h", "sources/maglev_fmi_common.h"} <= names
 

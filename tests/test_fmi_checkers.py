@@ -2,7 +2,7 @@
 reference importer ``fmusim`` (Reference-FMUs v0.0.39: FMI 2.0 and 3.0) and the FMU Compliance
 Checker ``fmuCheck`` (2.0.4, FMI Library 2.0.3: FMI 1.0 and 2.0 only, so not the 3.0 plant).
 
-The FMU kinds: the plant (FMI 2.0 and 3.0), the controller (``maglev_pid.fmu``), a rig's plant
+The FMU kinds: the plant (FMI 2.0 and 3.0), the controller (``maglev_pid.fmu``, ``maglev_pid3.fmu``), a rig's plant
 (``maglev-cosim fmu --rig inteco-mls2em``) and a calibrated plant (``maglev_calibrated.fmu``, made
 the way the diagnosis makes it). For each:
 
@@ -114,18 +114,20 @@ def _make(name: str, tmp: Path) -> Kind:
                        documentation={"index.html": b"<html><body>report</body></html>\n", "report.md": b"# report\n"},
                        source_sha256="ab" * 32)
         return _levitating(out, 2)
-    if name == "pid":
+    if name in ("pid", "pid-fmi3"):
         # the measured input y wandering about the reference (0.4 MU, 0.45 from 50 ms on, plus w_in:
         # 0, then 0.02 from 120 ms on), piecewise constant; the output stays within its limits [0, 1]
         t = np.arange(N) * H
         y = 0.42 + 0.02 * np.sin(2 * np.pi * 7 * t) + 0.002 * np.sign(np.sin(2 * np.pi * 23 * t))
         w_in = np.where(t >= 0.12, 0.02, 0.0)
-        return Kind(pid_fmu_path(), 2, {"y": y, "w_in": w_in}, {"w0": 0.4, "w1": 0.45, "t_step": 0.05, "u_hold": 0.37})
+        version = 3 if name == "pid-fmi3" else 2
+        return Kind(pid_fmu_path(version), version, {"y": y, "w_in": w_in},
+                    {"w0": 0.4, "w1": 0.45, "t_step": 0.05, "u_hold": 0.37})
     raise ValueError(name)
 
 
-KINDS = ["plant-fmi2", "plant-fmi3", "pid", "rig-inteco-mls2em", "calibrated"]
-FMI2_KINDS = [k for k in KINDS if k != "plant-fmi3"]
+KINDS = ["plant-fmi2", "plant-fmi3", "pid", "pid-fmi3", "rig-inteco-mls2em", "calibrated"]
+FMI2_KINDS = [k for k in KINDS if k not in ("plant-fmi3", "pid-fmi3")]
 
 
 @pytest.fixture(scope="module")

@@ -21,47 +21,62 @@ from maglev_cosim.model_description import PID_GUID, generate, pid_identity, rea
 from maglev_cosim.pid import PID
 
 
-@pytest.fixture(scope="module")
-def pid_binary(tmp_path_factory) -> Path:
-    with zipfile.ZipFile(pid_fmu_path()) as z:
-        return Path(z.extract(host_binary(z, "maglev_pid"), tmp_path_factory.mktemp("pid_binary")))
+@pytest.fixture(scope="module", params=[2, 3], ids=["fmi2", "fmi3"])
+def pid_binary(request, tmp_path_factory) -> tuple[int, Path]:
+    """(FMI version, the controller FMU's binary for this platform, extracted)."""
+    with zipfile.ZipFile(pid_fmu_path(request.param)) as z:
+        return request.param, Path(z.extract(host_binary(z, "maglev_pid"), tmp_path_factory.mktemp("pid_binary")))
 
 
 def test_pid_description_is_what_its_c_table_generates(repo, pid_binary):
-    committed = (repo / "modelDescription_pid.xml").read_text()
-    assert committed == generate(read_pid_table(pid_binary), pid_identity()), (
-        "modelDescription_pid.xml differs from the C table: run python -m maglev_cosim.model_description --pid "
-        f"{pid_binary} {repo / 'modelDescription_pid.xml'}")
+    version, binary = pid_binary
+    xml = {2: "modelDescription_pid.xml", 3: "modelDescription_pid3.xml"}[version]
+    committed = (repo / xml).read_text()
+    assert committed == generate(read_pid_table(binary), pid_identity(version), version), (
+        f"{xml} differs from the C table: run python -m maglev_cosim.model_description --pid --fmi {version} "
+        f"{binary} {repo / xml}")
     for src in ("c/maglev_pid_fmu.c", "tests/c/test_pid_fmu.c"):
         m = re.search(r'#define (?:MAGLEV_PID_)?GUID "(\{[^"]+\})"', (repo / src).read_text())
         assert m and m.group(1) == PID_GUID, src
 
 
-def test_pid_fmu_passes_fmpys_checks_and_equals_the_python_pid(tmp_path):
-    """The C controller FMU, stepped by fmpy, against the toolkit's Python PID (pid.DiscretePID),
-    written apart from the C one: the same u[k] on a reading that drives u into both limits."""
-    fmu = pid_fmu_path()
+@pytest.mark.parametrize("version", [2, 3], ids=["fmi2", "fmi3"])
+def test_pid_fmu_passes_fmpys_checks_and_equals_the_python_pid(tmp_path, version):
+    """The C controller FMU (FMI 2.0 and 3.0: one glue, one model), stepped by fmpy, against the toolkit's
+    Python PID (pid.DiscretePID), written apart from the C one: the same u[k] on a reading that drives u
+    into both limits."""
+    from fmpy.fmi3 import FMU3Slave
+
+    fmu = pid_fmu_path(version)
     assert validate_fmu(str(fmu)) == []
     md = read_model_description(str(fmu))
     vr = {v.name: v.valueReference for v in md.modelVariables}
     cfg = PID(tf=0.002, anti_windup="conditional")
     settings = {"kp": cfg.kp, "ki": cfg.ki, "kd": cfg.kd, "tf": cfg.tf, "anti_windup": 1.0, "u_hold": 0.37,
                 "w0": 0.40, "w1": 0.45, "t_step": 0.02}
-    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmu), unzipdir=str(tmp_path / "pid")),
-                      modelIdentifier="maglev_pid", instanceName="pid")
-    slave.instantiate()
-    slave.setupExperiment(startTime=0.0)
-    slave.setReal([vr[k] for k in settings], list(settings.values()))
-    slave.enterInitializationMode()
+    unzipped = extract(str(fmu), unzipdir=str(tmp_path / "pid"))
+    if version == 2:
+        slave = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier="maglev_pid", instanceName="pid")
+        slave.instantiate()
+        slave.setupExperiment(startTime=0.0)
+        slave.setReal([vr[k] for k in settings], list(settings.values()))
+        slave.enterInitializationMode()
+        set_real, get_real = slave.setReal, slave.getReal
+    else:
+        slave = FMU3Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier="maglev_pid", instanceName="pid")
+        slave.instantiate()
+        slave.setFloat64([vr[k] for k in settings], list(settings.values()))
+        slave.enterInitializationMode(startTime=0.0)
+        set_real, get_real = slave.setFloat64, slave.getFloat64
     slave.exitInitializationMode()
     ref = cfg.start(u_hold=0.37)
     n = 200
     y = 0.42 + 0.4 * np.sin(np.arange(n) * 0.05)
     got, want = [], []
     for k in range(n):
-        slave.setReal([vr["y"]], [float(y[k])])
+        set_real([vr["y"]], [float(y[k])])
         slave.doStep(currentCommunicationPoint=k * cfg.ts, communicationStepSize=cfg.ts)
-        got.append(slave.getReal([vr["u"]])[0])
+        got.append(get_real([vr["u"]])[0])
         w = 0.45 if k * cfg.ts >= 0.02 - 1e-12 else 0.40
         want.append(ref.step(w, float(y[k])))
     slave.terminate()

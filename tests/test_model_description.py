@@ -119,7 +119,7 @@ def test_value_references_follow_the_c_enum(repo):
 def test_guid_is_the_same_everywhere(repo):
     md = read_model_description(str(repo / "modelDescription.xml"))
     assert md.guid == GUID
-    for src in ("c/maglev_fmi_common.h", "tests/c/test_fmu.c"):
+    for src in ("c/maglev_plant_fmu.c", "tests/c/test_fmu.c", "tests/c/test_fmi3.c"):
         m = re.search(r'#define (?:MAGLEV_)?GUID "(\{[^"]+\})"', (repo / src).read_text())
         assert m and m.group(1) == GUID, src
 
@@ -156,7 +156,7 @@ def test_archive_holds_binary_and_listed_sources(fmu_path):
     assert "modelDescription.xml" in names
     assert "binaries/linux64/maglev.so" in names
     listed = [f for bc in md.buildConfigurations for fs in bc.sourceFileSets for f in fs.sourceFiles]
-    assert sorted(listed) == ["maglev_fmi_common.c", "maglev_fmu.c", "maglev_plant.c"]
+    assert sorted(listed) == ["maglev_fmi_common.c", "maglev_fmu.c", "maglev_plant.c", "maglev_plant_fmu.c"]
     for f in listed:
         assert f"sources/{f}" in names
     assert {"sources/maglev_plant.h", "sources/maglev_fmi_common.h"} <= names

@@ -36,14 +36,37 @@ def test_installed_c_sources_and_model_description_are_the_repository_ones(repo)
     assert _resources.model_description_path(3).read_bytes() == (repo / "modelDescription3.xml").read_bytes(), STALE
 
 
-@pytest.mark.parametrize("version, xml, glue", [(2, "modelDescription.xml", "maglev_fmu.c"),
-                                                (3, "modelDescription3.xml", "maglev_fmi3.c")])
-def test_installed_fmu_carries_the_repository_model_description_and_sources(repo, version, xml, glue):
-    with zipfile.ZipFile(maglev_cosim.fmu_path(fmi_version=version)) as z:
+# Every FMU: one set of FMI entry points, the one glue, one model (docs/fmu.md, "One glue, two models").
+GLUE = ("maglev_fmi_common.c", "maglev_fmi_common.h")
+PLANT_MODEL = ("maglev_plant_fmu.c", "maglev_plant.c", "maglev_plant.h")
+PID_MODEL = ("maglev_pid_fmu.c", "maglev_pid_fmu.h", "maglev_replay.c", "maglev_replay.h", "maglev_plant.c",
+             "maglev_plant.h")
+INSTALLED_FMUS = {
+    "plant-fmi2": (lambda: maglev_cosim.fmu_path(), "modelDescription.xml", ("maglev_fmu.c", *GLUE, *PLANT_MODEL)),
+    "plant-fmi3": (lambda: maglev_cosim.fmu_path(fmi_version=3), "modelDescription3.xml",
+                   ("maglev_fmi3.c", *GLUE, *PLANT_MODEL)),
+    "pid-fmi2": (lambda: _resources.pid_fmu_path(), "modelDescription_pid.xml", ("maglev_fmu.c", *GLUE, *PID_MODEL)),
+    "pid-fmi3": (lambda: _resources.pid_fmu_path(fmi_version=3), "modelDescription_pid3.xml",
+                 ("maglev_fmi3.c", *GLUE, *PID_MODEL)),
+}
+
+
+@pytest.mark.parametrize("key", INSTALLED_FMUS)
+def test_installed_fmu_carries_the_repository_model_description_and_sources(repo, key):
+    path, xml, files = INSTALLED_FMUS[key]
+    with zipfile.ZipFile(path()) as z:
         assert z.read("modelDescription.xml") == (repo / xml).read_bytes(), STALE
-        for name in (glue, "maglev_fmi_common.c", "maglev_fmi_common.h", "maglev_fmi2_me_stubs.h", "maglev_plant.c",
-                     "maglev_plant.h"):
+        sources = {n.removeprefix("sources/") for n in z.namelist() if n.startswith("sources/") and n[-1] != "/"}
+        assert sources - {"buildDescription.xml"} == set(files), f"{path().name}: {STALE}"
+        for name in files:
             assert z.read(f"sources/{name}") == (repo / "c" / name).read_bytes(), f"{name}: {STALE}"
+
+
+def test_pid_fmu_path_api():
+    assert _resources.pid_fmu_path().name == "maglev_pid.fmu"
+    assert _resources.pid_fmu_path(fmi_version=3).name == "maglev_pid3.fmu"
+    with pytest.raises(ValueError, match="fmi_version"):
+        _resources.pid_fmu_path(fmi_version=1)
 
 
 def test_fast_library_is_installed_and_loads():
@@ -78,6 +101,7 @@ WHEEL_MEMBERS = [
     "maglev_cosim/_data/maglev.fmu",
     "maglev_cosim/_data/maglev3.fmu",
     "maglev_cosim/_data/maglev_pid.fmu",
+    "maglev_cosim/_data/maglev_pid3.fmu",
     "maglev_cosim/_data/c/maglev_pid_fmu.c",
     "maglev_cosim/_data/c/maglev_pid_fmu.h",
     "maglev_cosim/_data/modelDescription.xml",
@@ -86,6 +110,7 @@ WHEEL_MEMBERS = [
     "maglev_cosim/_data/c/maglev_fmu.c",
     "maglev_cosim/_data/c/maglev_fmi3.c",
     "maglev_cosim/_data/c/maglev_fmi_common.c",
+    "maglev_cosim/_data/c/maglev_plant_fmu.c",
     "maglev_cosim/_data/c/maglev_plant.c",
     "maglev_cosim/_data/c/maglev_plant.h",
     "maglev_cosim/_data/c/maglev_replay.c",

@@ -6,8 +6,8 @@ mingw-w64 (``binaries/win64`` for FMI 2.0, ``binaries/x86_64-windows`` for FMI 3
   left when wine cannot run;
 - with wine: the small importer ``tests/c/fmi_importer.c``, cross-compiled, runs the closed-loop step
   against ``maglev.dll`` under wine, and its Linux build against ``maglev.so``; the trajectories must
-  agree to 1e-12 (FMI 2.0, FMI 3.0, with the PID FMU as controller, and a rig FMU whose start values
-  and GUID come from its resources/ folder). The Linux run itself is checked against loop.simulate.
+  agree to 1e-12 (FMI 2.0, FMI 3.0, with the PID FMU of the same version as controller, and a rig FMU
+  whose start values and GUID come from its resources/ folder). The Linux run itself is checked against loop.simulate.
 
 Skips, with the reason, when the cross compiler or wine is absent (scripts/setup.sh installs both
 when it runs as root with apt-get)."""
@@ -45,7 +45,8 @@ needs_wine = pytest.mark.skipif(WINE is None, reason=f"wine64 is not installed: 
 
 FMUS = {"fmi2": (lambda: maglev_cosim.fmu_path(), "binaries/win64/maglev.dll", "fmi2"),
         "fmi3": (lambda: maglev_cosim.fmu_path(fmi_version=3), "binaries/x86_64-windows/maglev.dll", "fmi3"),
-        "pid": (pid_fmu_path, "binaries/win64/maglev_pid.dll", "fmi2")}
+        "pid": (pid_fmu_path, "binaries/win64/maglev_pid.dll", "fmi2"),
+        "pid3": (lambda: pid_fmu_path(fmi_version=3), "binaries/x86_64-windows/maglev_pid.dll", "fmi3")}
 
 
 def fmi_functions(prefix: str) -> set[str]:
@@ -69,7 +70,7 @@ def pe_table(dll: Path) -> tuple[set[str], set[str]]:
 
 @pytest.fixture(scope="module")
 def extracted(tmp_path_factory) -> dict[str, Path]:
-    """The installed FMUs (plant 2.0, 3.0, PID), extracted."""
+    """The installed FMUs (plant 2.0, 3.0, PID 2.0, 3.0), extracted."""
     out = {}
     for key, (path, dll, _) in FMUS.items():
         d = tmp_path_factory.mktemp(key)
@@ -166,12 +167,12 @@ def linux_reference() -> np.ndarray:
 @needs_mingw
 @needs_wine
 @pytest.mark.slow   # wine takes 20 s: scripts/test.sh runs these in its Windows step
-@pytest.mark.parametrize("case", ["fmi2", "fmi3", "fmi2+pid_fmu"])
+@pytest.mark.parametrize("case", ["fmi2", "fmi3", "fmi2+pid_fmu", "fmi3+pid3_fmu"])
 def test_wine_closed_loop_matches_linux(case, wine_runs, extracted, linux_reference):
     """The closed-loop step, 1 s at the paper's 1 kHz: maglev.dll under wine against maglev.so."""
     args = settings_args()
-    if case == "fmi2+pid_fmu":
-        args = ["--pid-fmu", str(extracted["pid"]), *args]
+    if "+" in case:     # the controller FMU of the same FMI version
+        args = ["--pid-fmu", str(extracted["pid3" if case.startswith("fmi3") else "pid"]), *args]
     lin, win = importer_runs(extracted[case.split("+")[0]], STOP, args)
     diff = max_difference(lin, win)
     print(f"\n[win64] {case}: {len(lin)} samples, max |linux64 - win64 under wine| = {diff:.3g}")

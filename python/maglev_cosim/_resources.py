@@ -4,9 +4,12 @@
 
 - ``maglev.fmu``: the plant FMU, FMI 2.0 (``binaries/<platform>/maglev.so`` and ``sources/`` inside);
 - ``maglev3.fmu``: the same plant as an FMI 3.0 co-simulation FMU;
-- ``maglev_pid.fmu``: the controller FMU (``c/maglev_pid_fmu.c``);
-- ``modelDescription.xml``, ``modelDescription3.xml``: their model descriptions;
-- ``c/``: the C sources and headers (``maglev_plant.[ch]``, ``maglev_fmu.c``, ``maglev_replay.[ch]``);
+- ``maglev_pid.fmu``: the controller FMU (the PID of ``c/maglev_pid_fmu.c`` behind the same FMI glue);
+- ``maglev_pid3.fmu``: the same controller as an FMI 3.0 co-simulation FMU;
+- ``modelDescription.xml``, ``modelDescription3.xml``: the plant FMUs' model descriptions;
+- ``c/``: the C sources and headers (the FMI entry points ``maglev_fmu.c`` and ``maglev_fmi3.c``, the glue
+  ``maglev_fmi_common.[ch]``, the models ``maglev_plant_fmu.c`` and ``maglev_pid_fmu.[ch]``,
+  ``maglev_plant.[ch]``, ``maglev_replay.[ch]``);
 - ``libmaglev_fast.so`` (``.dylib``, ``maglev_fast.dll``): plant + closed-loop replay, the fast path.
 
 ``$MAGLEV_FMU`` (``$MAGLEV_FMU3`` for FMI 3.0), when set, names the FMU to use instead of the installed one.
@@ -59,9 +62,14 @@ def fmu_path(fmi_version: int = 2) -> Path:
     return _need(DATA / name, f"the installed FMI {fmi_version}.0 FMU")
 
 
-def pid_fmu_path() -> Path:
-    """The controller FMU (the paper's PID with a step reference): ``maglev_cosim/_data/maglev_pid.fmu``."""
-    return _need(DATA / "maglev_pid.fmu", "the installed controller FMU")
+_PID_FMU_FILES = {2: "maglev_pid.fmu", 3: "maglev_pid3.fmu"}
+
+
+def pid_fmu_path(fmi_version: int = 2) -> Path:
+    """The controller FMU (the paper's PID with a step reference): ``maglev_cosim/_data/maglev_pid.fmu``;
+    with ``fmi_version=3``, the FMI 3.0 ``maglev_pid3.fmu``."""
+    _version(fmi_version)
+    return _need(DATA / _PID_FMU_FILES[fmi_version], f"the installed FMI {fmi_version}.0 controller FMU")
 
 
 def model_description_path(fmi_version: int = 2) -> Path:

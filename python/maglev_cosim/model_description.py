@@ -23,7 +23,8 @@ then fails until the constant is updated to match, on purpose.
 says. Regenerate, from the repository root after ``scripts/setup.sh``, with
 ``python -m maglev_cosim.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``
 and ``... --fmi 3 build/fmu/binaries/linux64/maglev.so modelDescription3.xml``; the controller
-FMU's with ``... --pid build/maglev_pid.so modelDescription_pid.xml``.
+FMU's with ``... --pid build/maglev_pid.so modelDescription_pid.xml`` and
+``... --pid --fmi 3 build/maglev_pid.so modelDescription_pid3.xml``.
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ from ._resources import c_dir
 
 GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 MODEL_IDENTIFIER = "maglev"
-SOURCE_FILES = ("maglev_fmu.c", "maglev_fmi_common.c", "maglev_plant.c")
+#: The FMI 2.0 plant FMU's C files (<SourceFiles>): the FMI 2.0 entry points, the glue, the plant as its model.
+SOURCE_FILES = ("maglev_fmu.c", "maglev_fmi_common.c", "maglev_plant_fmu.c", "maglev_plant.c")
 #: generationDateAndTime of the committed descriptions (see the module docstring).
 GENERATION_DATE = "2026-11-25T00:00:00Z"
 
@@ -131,23 +133,25 @@ def plant_identity(fmi_version: int = 2) -> Identity:
     )
 
 
-#: The controller FMU (c/maglev_pid_fmu.[ch], build/maglev_pid.fmu).
+#: The controller FMU (c/maglev_pid_fmu.[ch], build/maglev_pid.fmu and build/maglev_pid3.fmu): the same
+#: FMI entry points and glue as the plant's, with the PID as the model.
 PID_GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0101}"
 PID_MODEL_IDENTIFIER = "maglev_pid"
-PID_SOURCE_FILES = ("maglev_pid_fmu.c", "maglev_replay.c", "maglev_plant.c")
+PID_SOURCE_FILES = ("maglev_fmu.c", "maglev_fmi_common.c", "maglev_pid_fmu.c", "maglev_replay.c", "maglev_plant.c")
 
 
-def pid_identity() -> Identity:
-    """The controller FMU's identity (FMI 2.0). Its output u changes only in fmi2DoStep, when the
-    controller samples its inputs: no output depends on an input at the same instant."""
+def pid_identity(fmi_version: int = 2) -> Identity:
+    """The controller FMU's identity (FMI 2.0 or 3.0; one token for both, as the plant has). Its output
+    u changes only in the step, when the controller samples its inputs: no output depends on an input
+    at the same instant."""
     return Identity(
         model_name="CE152 discrete PID with step reference",
         model_identifier=PID_MODEL_IDENTIFIER,
         token=PID_GUID,
         description="The paper's discrete PID (Eq. 24/25) of the CE152 magnetic levitation loop, with output "
                     "limits, derivative filter, anti-windup and a step reference w0 -> w1 at t_step (plus the input "
-                    "w_in); samples y at t0 + k*ts in fmi2DoStep and holds u until the next sample",
-        source_files=PID_SOURCE_FILES,
+                    f"w_in); samples y at t0 + k*ts in fmi{fmi_version}DoStep and holds u until the next sample",
+        source_files=PID_SOURCE_FILES if fmi_version == 2 else (),
     )
 
 
@@ -381,13 +385,13 @@ def main(argv: list[str] | None = None) -> int:
     if len(args) >= 2 and args[0] == "--fmi":
         fmi_version = int(args[1])
         args = args[2:]
-    if len(args) not in (1, 2) or fmi_version not in (2, 3) or (pid and fmi_version != 2):
+    if len(args) not in (1, 2) or fmi_version not in (2, 3):
         print("usage: python -m maglev_cosim.model_description [--fmi 2|3] PATH/TO/maglev.so [OUT.xml]\n"
-              "       python -m maglev_cosim.model_description --pid PATH/TO/maglev_pid.so [OUT.xml]\n"
+              "       python -m maglev_cosim.model_description --pid [--fmi 2|3] PATH/TO/maglev_pid.so [OUT.xml]\n"
               "writes OUT.xml (default: modelDescription.xml in the current folder)", file=sys.stderr)
         return 2
     target = Path(args[1] if len(args) == 2 else "modelDescription.xml")
-    ident = pid_identity() if pid else plant_identity(fmi_version)
+    ident = pid_identity(fmi_version) if pid else plant_identity(fmi_version)
     ident = Identity(**{**ident.__dict__, "generation_date": _date_from_environment()})
     table = read_pid_table(args[0]) if pid else read_table(args[0])
     target.write_text(generate(table, ident, fmi_version))

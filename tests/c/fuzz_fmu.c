@@ -3,10 +3,16 @@
  * Each seed drives one sequence of FMI calls on up to four interleaved instances, chosen by a
  * splitmix64 generator seeded with it, so a seed replays exactly (--seeds X:X+1). Every call goes
  * through one wrapper that times it and checks its status and the logger; the operations check what
- * the standard and the variable table (maglev_variables[]) promise; slot 0's operations are recorded
- * and replayed at the end of the sequence on a shadow instance that runs alone, which must give
- * bit-identical results; a counting allocator attributes every block to the instance whose call
- * allocated it. Run under ASan/UBSan in CI (ctest -L fuzz, MAGLEV_SANITIZE=ON). */
+ * the standard and the model's variable table promise; slot 0's operations are recorded and replayed
+ * at the end of the sequence on a shadow instance that runs alone, which must give bit-identical
+ * results; a counting allocator attributes every block to the instance whose call allocated it. Run
+ * under ASan/UBSan in CI (ctest -L fuzz, MAGLEV_SANITIZE=ON).
+ *
+ * One harness for every model behind the FMI glue (c/maglev_fmi_common.h): built as fuzz_fmu it drives
+ * the plant FMU (maglev_fmu.c, the glue, maglev_plant_fmu.c); built with -DFUZZ_PID as fuzz_fmu_pid, the
+ * PID controller FMU (the same entry points and glue, maglev_pid_fmu.c). What differs is the model block
+ * below: the variable table, the GUID, the serialized image's magic and header, and the scenario
+ * generator. */
 #define _POSIX_C_SOURCE 200809L
 #include <float.h>
 #include <math.h>
@@ -20,7 +26,33 @@
 #include "fmi2Functions.h"
 #include "maglev_plant.h"
 
+/* ---------------------------------------------------------------- the model under test */
+
+#ifdef FUZZ_PID
+#include "maglev_pid_fmu.h"
+#define PROGRAM "fuzz_fmu_pid"
+#define GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0101}"
+#define VARS maglev_pid_variables
+#define NV MAGLEV_PID_NVARS
+#define FIRST_PARAM MAGLEV_PID_FIRST_PARAM
+#define NPARAMS MAGLEV_PID_NPARAMS
+#define SER_MAGIC "MGPID"      /* the serialized image (maglev_pid_fmu.c): its magic and header length */
+#define SER_HEADER 24
+static const fmi2ValueReference INPUTS[] = {PID_y, PID_w_in}, OUTPUTS[] = {PID_u, PID_w};
+#else
+#define PROGRAM "fuzz_fmu"
 #define GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
+#define VARS maglev_variables
+#define NV MAGLEV_NVARS
+#define FIRST_PARAM MAGLEV_FIRST_PARAM
+#define NPARAMS MAGLEV_NPARAMS
+#define SER_MAGIC "MGLV"       /* the serialized image (maglev_plant.c) */
+#define SER_HEADER 28
+static const fmi2ValueReference INPUTS[] = {VR_u}, OUTPUTS[] = {VR_y, VR_x, VR_v, VR_i, VR_F};
+#endif
+#define N_INPUTS (sizeof INPUTS / sizeof INPUTS[0])
+#define N_OUTPUTS (sizeof OUTPUTS / sizeof OUTPUTS[0])
+
 #define NSLOT 4      /* fuzzed instances per sequence; slot 0 is replayed on the shadow */
 #define SHADOW_ID NSLOT
 #define MAXH 4       /* FMU states an instance holds at once */
@@ -140,7 +172,7 @@ static void failf(const char *fmt, ...) {
     va_start(ap, fmt);
     fprintf(stderr, "FAIL seed %llu call %ld: ", g.seed, g.call);
     vfprintf(stderr, fmt, ap);
-    fprintf(stderr, "   [replay: fuzz_fmu --seeds %llu:%llu --trace]\n", g.seed, g.seed + 1);
+    fprintf(stderr, "   [replay: " PROGRAM " --seeds %llu:%llu --trace]\n", g.seed, g.seed + 1);
     va_end(ap);
 }
 
@@ -381,9 +413,9 @@ static fmi2Status get_real(Inst *in, const fmi2ValueReference *vr, size_t n, dou
         if (n && (!vr || !v)) failf("fmi2GetReal with a NULL array returned %s", st_name[st_index(st)]);
         else
             for (size_t k = 0; k < n; k++) {
-                if (vr[k] >= MAGLEV_NVARS) failf("fmi2GetReal of unknown value reference %u returned OK", (unsigned)vr[k]);
+                if (vr[k] >= NV) failf("fmi2GetReal of unknown value reference %u returned OK", (unsigned)vr[k]);
                 else if (!isfinite(v[k]))
-                    failf("fmi2GetReal returned %g for %s with status %s", v[k], maglev_variables[vr[k]].name,
+                    failf("fmi2GetReal returned %g for %s with status %s", v[k], VARS[vr[k]].name,
                           st_name[st_index(st)]);
             }
     }
@@ -392,8 +424,8 @@ static fmi2Status get_real(Inst *in, const fmi2ValueReference *vr, size_t n, dou
 }
 
 static const fmi2ValueReference *all_vrs(void) {
-    static fmi2ValueReference vr[MAGLEV_NVARS];
-    for (int k = 0; k < MAGLEV_NVARS; k++) vr[k] = (fmi2ValueReference)k;
+    static fmi2ValueReference vr[NV];
+    for (int k = 0; k < NV; k++) vr[k] = (fmi2ValueReference)k;
     return vr;
 }
 
@@ -427,26 +459,26 @@ static size_t state_bytes(Inst *in, unsigned char **out, Res *r) {
 static int strict_set(const Op *op, int allow_params) {
     for (size_t k = 0; k < op->n; k++) {
         fmi2ValueReference v = op->vr[k];
-        if (v >= MAGLEV_NVARS || maglev_variables[v].causality == MAGLEV_OUTPUT) return 0;
-        if (!allow_params && maglev_variables[v].causality == MAGLEV_PARAMETER) return 0;
+        if (v >= NV || VARS[v].causality == MAGLEV_OUTPUT) return 0;
+        if (!allow_params && VARS[v].causality == MAGLEV_PARAMETER) return 0;
     }
     return 1;
 }
 
 /* The round trip's continuation: a new input, one step from where the FMU says it is, all variables. */
-static void continue_step(Inst *in, const Op *op, Res *r, fmi2Status st[4], double v[MAGLEV_NVARS]) {
-    fmi2ValueReference u = VR_u;
+static void continue_step(Inst *in, const Op *op, Res *r, fmi2Status st[4], double v[NV]) {
+    fmi2ValueReference u = INPUTS[0];
     double t = 0;
     st[0] = res_st(r, CALL(FN_SetReal, in, fmi2SetReal(in->c, &u, 1, &op->x1)));
     st[1] = res_st(r, CALL(FN_GetRealStatus, in, fmi2GetRealStatus(in->c, fmi2LastSuccessfulTime, &t)));
     st[2] = OKISH(st[1]) ? res_st(r, CALL(FN_DoStep, in, fmi2DoStep(in->c, t, op->x2, fmi2False))) : fmi2Error;
-    st[3] = get_real(in, all_vrs(), MAGLEV_NVARS, v, r);
+    st[3] = get_real(in, all_vrs(), NV, v, r);
 }
 
 static int same_values(const double *a, const double *b, const char *what) {
-    for (int k = 0; k < MAGLEV_NVARS; k++)
+    for (int k = 0; k < NV; k++)
         if (memcmp(&a[k], &b[k], sizeof a[k]) != 0) {
-            failf("%s: %s = %.17g, expected %.17g", what, maglev_variables[k].name, b[k], a[k]);
+            failf("%s: %s = %.17g, expected %.17g", what, VARS[k].name, b[k], a[k]);
             return 0;
         }
     return 1;
@@ -544,8 +576,8 @@ static void exec_op(Inst *in, const Op *op, Res *r) {
             if (op->n && (op->null_vr || op->null_val)) failf("fmi2SetReal with a NULL array returned OK");
             for (size_t k = 0; k < op->n && !op->null_vr && !op->null_val; k++) {
                 fmi2ValueReference v = op->vr[k];
-                if (v >= MAGLEV_NVARS) { failf("fmi2SetReal of unknown value reference %u returned OK", (unsigned)v); break; }
-                const MaglevVariable *var = &maglev_variables[v];
+                if (v >= NV) { failf("fmi2SetReal of unknown value reference %u returned OK", (unsigned)v); break; }
+                const MaglevVariable *var = &VARS[v];
                 if (var->causality == MAGLEV_OUTPUT) failf("fmi2SetReal of output %s returned OK", var->name);
                 else if (!isfinite(op->val[k])) failf("fmi2SetReal of %s = %g returned OK", var->name, op->val[k]);
                 else if (var->causality == MAGLEV_PARAMETER && (op->val[k] < var->min || op->val[k] > var->max))
@@ -793,9 +825,9 @@ static void exec_op(Inst *in, const Op *op, Res *r) {
          * original state, which must serialize to the same bytes. */
         g.roundtrips += in->model != NULL;
         const fmi2ValueReference *vr = all_vrs();
-        double v0[MAGLEV_NVARS], v1[MAGLEV_NVARS], va[MAGLEV_NVARS], vb[MAGLEV_NVARS];
+        double v0[NV], v1[NV], va[NV], vb[NV];
         fmi2Status ca[4], cb[4];
-        fmi2Status g0 = get_real(in, vr, MAGLEV_NVARS, v0, r);
+        fmi2Status g0 = get_real(in, vr, NV, v0, r);
         fmi2FMUstate s = NULL, s2 = NULL;
         unsigned char *b1 = NULL, *b3 = NULL;
         size_t n = 0, n3;
@@ -823,7 +855,7 @@ static void exec_op(Inst *in, const Op *op, Res *r) {
             goto rt_free;
         }
         {
-            fmi2Status g1 = get_real(in, vr, MAGLEV_NVARS, v1, r);
+            fmi2Status g1 = get_real(in, vr, NV, v1, r);
             if (g1 != g0) failf("round trip: fmi2GetReal of all variables gave %s before, %s after", st_name[st_index(g0)], st_name[st_index(g1)]);
             else if (OKISH(g0) && !same_values(v0, v1, "round trip: restored"))
                 goto rt_free;
@@ -856,7 +888,7 @@ static void exec_op(Inst *in, const Op *op, Res *r) {
         break;
     }
     case OP_NULLINST: {
-        fmi2ValueReference vr = VR_y;
+        fmi2ValueReference vr = OUTPUTS[0];
         double v = 0;
         fmi2FMUstate s = NULL;
         int fn;
@@ -895,8 +927,8 @@ static void exec_op(Inst *in, const Op *op, Res *r) {
 /* After each of slot 0's operations: all variables, now and then the whole state as bytes. */
 static void probe(Inst *in, Res *r, int full) {
     if (!in->c) return;
-    double v[MAGLEV_NVARS];
-    get_real(in, all_vrs(), MAGLEV_NVARS, v, r);
+    double v[NV];
+    get_real(in, all_vrs(), NV, v, r);
     if (full) {
         unsigned char *b = NULL;
         state_bytes(in, &b, r);
@@ -1059,13 +1091,14 @@ static void apply(int slot, const Op *op, Res *r) {
 /* ---------------------------------------------------------------- generating an operation */
 
 static double gen_value(fmi2ValueReference vr, int vc) {
-    const MaglevVariable *var = vr < MAGLEV_NVARS ? &maglev_variables[vr] : NULL;
+    const MaglevVariable *var = vr < NV ? &VARS[vr] : NULL;
     double def = var ? var->start : 1.0, lo = var ? var->min : -1e3, hi = var ? var->max : 1e3;
     double base = def != 0 ? def : (isfinite(hi) && hi > 0 ? hi / 10 : 1.0);
     switch (vc) {
     case VC_DEFAULT: return def;
-    case VC_RANDOM:
-        if (!isfinite(lo) || !isfinite(hi)) return vr == VR_u ? 2.4 * runit() - 1.2 : rsign() * rloguni(1e-6, 1e3);
+    case VC_RANDOM: /* an input as a controller or a plant gives it (MU), whatever its range */
+        if (var && var->causality == MAGLEV_INPUT) return 2.4 * runit() - 1.2;
+        if (!isfinite(lo) || !isfinite(hi)) return rsign() * rloguni(1e-6, 1e3);
         if (lo > 0 && hi / lo > 1e3) return rloguni(lo, hi);
         return lo + runit() * (hi - lo);
     case VC_MIN: return lo;
@@ -1083,19 +1116,19 @@ static double gen_value(fmi2ValueReference vr, int vc) {
     }
 }
 
+/* One of the inputs (no draw when there is one: the plant's sequences stay those of its own harness). */
+static fmi2ValueReference any_input(void) { return N_INPUTS == 1 ? INPUTS[0] : INPUTS[rbelow(N_INPUTS)]; }
+
 static fmi2ValueReference gen_vr(int hostile, unsigned phases) {
     unsigned r = rbelow(100);
     if (hostile && r < 10) {
-        static const fmi2ValueReference bad[] = {MAGLEV_NVARS, MAGLEV_NVARS + 1, 0x7fffffffu, 0xffffffffu, 1000};
+        static const fmi2ValueReference bad[] = {NV, NV + 1, 0x7fffffffu, 0xffffffffu, 1000};
         return r < 8 ? bad[r % 5] : (fmi2ValueReference)rnext();
     }
-    if (hostile && r < 22) {
-        static const fmi2ValueReference out[] = {VR_y, VR_x, VR_v, VR_i, VR_F};
-        return out[rbelow(5)];
-    }
-    if ((phases & P_STEP) && !(phases & (P_INST | P_INIT)) && !hostile) return VR_u;
-    if (r < 45) return VR_u;
-    return (fmi2ValueReference)(MAGLEV_FIRST_PARAM + rbelow(MAGLEV_NPARAMS));
+    if (hostile && r < 22) return OUTPUTS[rbelow(N_OUTPUTS)];
+    if ((phases & P_STEP) && !(phases & (P_INST | P_INIT)) && !hostile) return any_input();
+    if (r < 45) return any_input();
+    return (fmi2ValueReference)(FIRST_PARAM + rbelow(NPARAMS));
 }
 
 static int gen_vc(int hostile) {
@@ -1107,7 +1140,7 @@ static int gen_vc(int hostile) {
 static void gen_values(Op *op, int hostile, unsigned phases) {
     unsigned r = rbelow(100);
     op->n = r < 60 ? 1 : r < 85 ? 2 + rbelow(6) : r < 92 ? 0 : (size_t)MAXV;
-    if (op->n == MAXV && !hostile) op->n = MAGLEV_NPARAMS;
+    if (op->n == MAXV && !hostile) op->n = NPARAMS;
     for (size_t k = 0; k < op->n; k++) {
         op->vr[k] = gen_vr(hostile, phases);
         op->vc[k] = (unsigned char)gen_vc(hostile);
@@ -1167,13 +1200,13 @@ static void gen_buffer(Op *op, int slot) {
         break;
     case CR_RANDOM:
         for (size_t k = 0; k < n; k++) b[k] = (unsigned char)rnext();
-        if (rchance(0.5) && n >= 4) memcpy(b, "MGLV", 4); /* past the magic number */
+        if (rchance(0.5) && n >= sizeof SER_MAGIC - 1) memcpy(b, SER_MAGIC, sizeof SER_MAGIC - 1); /* past the magic */
         break;
     case CR_VALUE_RESUM:
-        if (n >= 44) {
-            size_t at = 28 + 8 * rbelow((unsigned)((n - 36) / 8)); /* an 8-byte field after the header */
+        if (n >= SER_HEADER + 16) {
+            size_t at = SER_HEADER + 8 * rbelow((unsigned)((n - SER_HEADER - 8) / 8)); /* an 8-byte field after the header */
             if (at + 8 <= n - 8) {
-                double v = gen_value((fmi2ValueReference)rbelow(MAGLEV_NVARS), (int)rbelow(VC_COUNT));
+                double v = gen_value((fmi2ValueReference)rbelow(NV), (int)rbelow(VC_COUNT));
                 if (rchance(0.3)) v = rsign() * runit();
                 memcpy(b + at, &v, 8);
             }
@@ -1181,8 +1214,8 @@ static void gen_buffer(Op *op, int slot) {
         recompute_sum(b, n);
         break;
     case CR_HEADER_RESUM:
-        if (n > 28) {
-            size_t at = 4 + rbelow(24);
+        if (n > SER_HEADER) {
+            size_t at = 4 + rbelow(SER_HEADER - 4);
             b[at] = rchance(0.5) ? (unsigned char)rnext() : (unsigned char)(b[at] + 1);
         }
         recompute_sum(b, n);
@@ -1192,13 +1225,51 @@ static void gen_buffer(Op *op, int slot) {
     g.corrupt[op->corrupt]++;
 }
 
+#ifdef FUZZ_PID
+/* A random but consistent controller (in range, relations kept, so that initialization accepts it): any
+ * sample time from 1 us (the step's sample bound then matters) to 10 ms, gains from gentle to harsh, with or
+ * without the derivative filter, every anti-windup mode with its band, limits anywhere in the range and the
+ * settled start between them, a reference step before, at or after the start. */
+static void gen_scenario(Op *op) {
+    struct { MaglevPidVR vr; double v; } s[24];
+    int n = 0;
+    double u_min = rchance(0.3) ? 0.0 : rsign() * rloguni(1e-3, 10.0), u_max = u_min + rloguni(1e-2, 100.0);
+    int aw = (int)rbelow(4);
+    s[n].vr = PID_ts, s[n++].v = rchance(0.05) ? 1e-6 : rloguni(1e-5, 1e-2);
+    s[n].vr = PID_kp, s[n++].v = (rchance(0.1) ? -1.0 : 1.0) * rloguni(1e-2, 1e3);
+    s[n].vr = PID_ki, s[n++].v = rchance(0.2) ? 0.0 : rloguni(1e-2, 1e4);
+    s[n].vr = PID_kd, s[n++].v = rchance(0.3) ? 0.0 : rloguni(1e-5, 1.0);
+    s[n].vr = PID_tf, s[n++].v = rchance(0.4) ? 0.0 : rloguni(1e-5, 1e-1);
+    s[n].vr = PID_u_min, s[n++].v = u_min;
+    s[n].vr = PID_u_max, s[n++].v = u_max;
+    s[n].vr = PID_anti_windup, s[n++].v = aw;
+    if (aw == 3 || rchance(0.2)) {
+        double lo = u_min + runit() * (u_max - u_min);
+        s[n].vr = PID_i_lo, s[n++].v = lo;
+        s[n].vr = PID_i_hi, s[n++].v = lo + rloguni(1e-3, 10.0);
+        s[n].vr = PID_backoff, s[n++].v = rchance(0.3) ? 1.0 : 1e-3 + runit() * (1 - 1e-3);
+    }
+    s[n].vr = PID_u_hold, s[n++].v = u_min + runit() * (u_max - u_min);
+    s[n].vr = PID_w0, s[n++].v = 2 * runit() - 1;
+    s[n].vr = PID_w1, s[n++].v = 2 * runit() - 1;
+    s[n].vr = PID_t_step, s[n++].v = rchance(0.2) ? 0.0 : rsign() * rloguni(1e-4, 1.0);
+    s[n].vr = PID_y, s[n++].v = 2.4 * runit() - 1.2;
+    if (rchance(0.5)) s[n].vr = PID_w_in, s[n++].v = 0.2 * runit() - 0.1;
+    op->n = (size_t)n;
+    for (int k = 0; k < n; k++) {
+        op->vr[k] = (fmi2ValueReference)s[k].vr;
+        op->val[k] = s[k].v;
+        op->vc[k] = VC_RANDOM;
+    }
+}
+#else
 /* A random but consistent plant (in range, relations kept, with the default stops): the ball anywhere
  * between the stops, moving or not, with or without delay, force lag, amplifier lag, sensor pickup and
  * deviation, fine or coarse solver steps. This is what takes the sequences deep into the plant. */
 static void gen_scenario(Op *op) {
     struct { MaglevVR vr; double v; } s[32];
     int n = 0;
-    double x_max = maglev_variables[VR_x_max].start, i_max = maglev_variables[VR_i_max].start;
+    double x_max = VARS[VR_x_max].start, i_max = VARS[VR_i_max].start;
     s[n].vr = VR_x_start, s[n++].v = rchance(0.3) ? (rchance(0.5) ? 0.0 : x_max) : runit() * x_max;
     s[n].vr = VR_v_start, s[n++].v = rchance(0.5) ? 0.0 : rsign() * rloguni(1e-4, 1.0);
     if (rchance(0.2)) s[n].vr = VR_i_max, i_max = s[n++].v = rloguni(1.0, 10.0);
@@ -1237,6 +1308,7 @@ static void gen_scenario(Op *op) {
         op->vc[k] = VC_RANDOM;
     }
 }
+#endif
 
 static fmi2FMUstate foreign_state(int slot) {
     if (slot != 0 && rchance(0.6)) { /* a live state of another instance (slot 0's too) */
@@ -1329,11 +1401,11 @@ static void gen_op(int slot, Op *op) {
         if (!hostile && (m->phases & (P_INST | P_INIT)) && rchance(0.3)) {
             gen_scenario(op);
         } else if (!hostile && (m->phases & (P_INST | P_INIT)) && rchance(0.15)) { /* back to the start values */
-            op->n = MAGLEV_NPARAMS;
+            op->n = NPARAMS;
             for (size_t k = 0; k < op->n; k++) {
-                op->vr[k] = (fmi2ValueReference)(MAGLEV_FIRST_PARAM + k);
+                op->vr[k] = (fmi2ValueReference)(FIRST_PARAM + k);
                 op->vc[k] = VC_DEFAULT;
-                op->val[k] = maglev_variables[op->vr[k]].start;
+                op->val[k] = VARS[op->vr[k]].start;
             }
         } else {
             gen_values(op, hostile, m->phases);
@@ -1346,10 +1418,10 @@ static void gen_op(int slot, Op *op) {
     case OP_DERIVS:
         gen_values(op, hostile || op->op != OP_GETREAL, m->phases);
         if (op->op == OP_GETREAL && !hostile)
-            for (size_t k = 0; k < op->n; k++) op->vr[k] = (fmi2ValueReference)rbelow(MAGLEV_NVARS);
+            for (size_t k = 0; k < op->n; k++) op->vr[k] = (fmi2ValueReference)rbelow(NV);
         if (op->op == OP_GETREAL && rchance(0.2)) { /* all variables and then some */
             op->n = MAXV;
-            for (size_t k = 0; k < op->n; k++) op->vr[k] = (fmi2ValueReference)(hostile ? rbelow(MAGLEV_NVARS + 3) : k % MAGLEV_NVARS);
+            for (size_t k = 0; k < op->n; k++) op->vr[k] = (fmi2ValueReference)(hostile ? rbelow(NV + 3) : k % NV);
         }
         op->var = (int)rbelow(op->op == OP_OTHERTYPE ? 6 : 2);
         op->i1 = (int)rbelow(100);
@@ -1533,7 +1605,7 @@ static unsigned long long random_seed(void) {
 }
 
 static void usage(void) {
-    fprintf(stderr, "usage: fuzz_fmu [--seeds A:B] [--random N] [--seconds S] [--max-ops N] [--max-call S] [--trace]\n"
+    fprintf(stderr, "usage: " PROGRAM " [--seeds A:B] [--random N] [--seconds S] [--max-ops N] [--max-call S] [--trace]\n"
                     "  --seeds A:B   the fixed seeds A, A+1, ..., B-1 (default 1:201); --seeds X replays seed X\n"
                     "  --random N    N more seeds from /dev/urandom, printed for replay (default 0)\n"
                     "  --seconds S   stop starting sequences once S seconds have passed (default: no limit)\n"
@@ -1574,12 +1646,12 @@ int main(int argc, char **argv) {
     }
     unsigned long long *rs = calloc((size_t)n_random + 1, sizeof *rs);
     for (long k = 0; k < n_random; k++) rs[k] = random_seed();
-    printf("fuzz_fmu: seeds %llu:%llu", a, b);
+    printf(PROGRAM ": seeds %llu:%llu", a, b);
     if (n_random) {
         printf(" and %ld random seeds:", n_random);
         for (long k = 0; k < n_random; k++) printf("%s%llu", k % 8 ? " " : "\n  ", rs[k]);
     }
-    printf("\n(replay one seed X with: fuzz_fmu --seeds X --trace)\n");
+    printf("\n(replay one seed X with: " PROGRAM " --seeds X --trace)\n");
     fflush(stdout);
     g.slowest_fn = -1;
     double t0 = now();
@@ -1594,7 +1666,7 @@ int main(int argc, char **argv) {
         done++;
     }
     double el = now() - t0;
-    printf("fuzz_fmu: %ld sequences, %ld calls in %.1f s = %.0f calls/s, %ld failures%s\n", g.sequences, g.calls, el,
+    printf(PROGRAM ": %ld sequences, %ld calls in %.1f s = %.0f calls/s, %ld failures%s\n", g.sequences, g.calls, el,
            el > 0 ? (double)g.calls / el : 0.0, g.failures,
            stopped ? " (stopped by --seconds before the last seeds)" : "");
     if (stopped) printf("  ran %llu of %llu seeds\n", done, total);

@@ -11,10 +11,12 @@
 
 #include "fmi2Functions.h"
 #include "fmi3Functions.h"
-#include "maglev_fmi_common.h"
+#include "maglev_plant.h"
 #include "check.h"
 #include "temp_dir.h"
 
+/* Must equal the instantiationToken of modelDescription3.xml (tests/test_model_description.py). */
+#define MAGLEV_GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 #define VR_TIME ((fmi3ValueReference)MAGLEV_NVARS)
 
 static char last_log[1024];

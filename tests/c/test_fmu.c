@@ -996,8 +996,8 @@ static void test_budget_decided_before_integrating(void) {
         last_log[0] = 0;
         CHECK(fmi2DoStep(c, 0.0, cases[k].h, fmi2True) == fmi2Error, "%s: a %g s step not refused", cases[k].what,
               cases[k].h);
-        /* white box: the FMI 2.0 instance begins with the MfInstance that holds the plant */
-        long work = ((const MfInstance *)c)->plant.work;
+        /* white box: the FMI 2.0 instance begins with the MfInstance that holds the plant as its model */
+        long work = ((const MaglevPlant *)((const MfInstance *)c)->data)->work;
         CHECK(work == 0, "%s: the refused step spent %ld RK4 evaluations", cases[k].what, work);
         CHECK(logged("RK4 steps") && logged("over the budget") && logged("shorter communication steps"),
               "%s: message '%s'", cases[k].what, last_log);
@@ -1017,7 +1017,7 @@ static void test_budget_decided_before_integrating(void) {
     const double one = 1.0;
     fmi2Component c = make_free_ball("long", &rc, &one, 1);
     CHECK(fmi2DoStep(c, 0.0, 40.0, fmi2True) == fmi2OK, "40 s at 0.1 ms substeps: %s", last_log);
-    long work = ((const MfInstance *)c)->plant.work;
+    long work = ((const MaglevPlant *)((const MfInstance *)c)->data)->work;
     CHECK(work >= 400000 && work <= MAGLEV_WORK_MAX, "40 s: %ld RK4 evaluations", work);
     fmi2FreeInstance(c);
 }

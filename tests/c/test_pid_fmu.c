@@ -1,6 +1,9 @@
-/* C tests of the controller FMU (c/maglev_pid_fmu.c): call sequence, bad values named, the samples
- * and the hold against the controller alone (maglev_replay_control), the step reference, FMU state
- * and its serialisation, a bounded step. Run under ASan/UBSan in CI (MAGLEV_SANITIZE=ON). */
+/* C tests of the controller FMU (the PID model c/maglev_pid_fmu.c behind the FMI glue
+ * c/maglev_fmi_common.c): call sequence, bad values named, the samples and the hold against the
+ * controller alone (maglev_replay_control), the step reference, FMU state and its serialisation with the
+ * experiment, a bounded step; the FMI 3.0 entry points (c/maglev_fmi3.c, linked in too) against the 2.0
+ * ones. Run under ASan/UBSan in CI (MAGLEV_SANITIZE=ON), and under wine in the win64 build. */
+#define _POSIX_C_SOURCE 200809L /* mkdtemp (temp_dir.h), for a resources folder */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -8,9 +11,11 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
+#include "fmi3Functions.h"
 #include "maglev_pid_fmu.h"
 #include "maglev_replay.h"
 #include "check.h"
+#include "temp_dir.h"
 
 #define GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0101}"
 
@@ -182,12 +187,246 @@ static void test_step_work_bounded(void) {
     fmi2FreeInstance(c);
 }
 
+static fmi2Byte *serialize(fmi2Component c, fmi2FMUstate s, size_t *size) {
+    *size = 0;
+    if (fmi2SerializedFMUstateSize(c, s, size) != fmi2OK) return NULL;
+    fmi2Byte *buf = malloc(*size);
+    if (fmi2SerializeFMUstate(c, s, buf, *size) != fmi2OK) {
+        free(buf);
+        return NULL;
+    }
+    return buf;
+}
+
+/* An instance whose experiment was start 5 s, stop 6 s: initialised, it starts at 5 s and refuses a step
+ * past 6 s. */
+static void check_experiment_restored(fmi2Component c, const char *what) {
+    CHECK(fmi2EnterInitializationMode(c) == fmi2OK && fmi2ExitInitializationMode(c) == fmi2OK, "%s: init: %s", what,
+          last_log);
+    double t = -1;
+    CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 5.0, "%s: time %g, not 5 s", what, t);
+    last_log[0] = 0;
+    CHECK(fmi2DoStep(c, 5.0, 2.0, fmi2True) == fmi2Error && logged("stopTime"), "%s: a step past stopTime 6 s not "
+          "refused: '%s'", what, last_log);
+    CHECK(fmi2DoStep(c, 5.0, 1e-3, fmi2True) == fmi2OK, "%s: a step within the experiment: %s", what, last_log);
+}
+
+/* The FMU state holds the experiment (the defect fixed for the plant in docs/fuzz.md, 5, which the
+ * controller had too: its stop time lived outside its FMU states, so a state set after a reset, or
+ * deserialized into another instance, stepped past the stop time it was taken with). */
+static void test_state_holds_experiment(void) {
+    fmi2Component c = make("experiment");
+    CHECK(fmi2SetupExperiment(c, fmi2True, 1e-6, 5.0, fmi2True, 6.0) == fmi2OK, "setup: %s", last_log);
+    fmi2FMUstate inst = NULL, init = NULL;
+    CHECK(fmi2GetFMUstate(c, &inst) == fmi2OK, "state in instantiated: %s", last_log);
+    size_t size = 0;
+    fmi2Byte *buf = serialize(c, inst, &size);
+    CHECK(buf != NULL, "serialize: %s", last_log);
+    CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "enter: %s", last_log);
+    CHECK(fmi2GetFMUstate(c, &init) == fmi2OK, "state in initialization mode: %s", last_log);
+    CHECK(fmi2Reset(c) == fmi2OK, "reset: %s", last_log);
+    CHECK(fmi2SetFMUstate(c, inst) == fmi2OK, "set the instantiated state: %s", last_log);
+    check_experiment_restored(c, "instantiated state after a reset");
+    CHECK(fmi2Reset(c) == fmi2OK, "reset: %s", last_log);
+    CHECK(fmi2SetFMUstate(c, init) == fmi2OK, "set the initialization-mode state: %s", last_log);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "exit: %s", last_log);
+    double t = -1;
+    CHECK(fmi2GetRealStatus(c, fmi2LastSuccessfulTime, &t) == fmi2OK && t == 5.0, "initialization-mode state: "
+          "time %g, not 5 s", t);
+    CHECK(fmi2DoStep(c, 5.0, 2.0, fmi2True) == fmi2Error && logged("stopTime"), "initialization-mode state: a step "
+          "past stopTime 6 s not refused: '%s'", last_log);
+
+    fmi2Component d = make("experiment2");
+    fmi2FMUstate r = NULL;
+    CHECK(buf && fmi2DeSerializeFMUstate(d, buf, size, &r) == fmi2OK, "deserialize: %s", last_log);
+    CHECK(fmi2SetFMUstate(d, r) == fmi2OK, "set the deserialized state: %s", last_log);
+    check_experiment_restored(d, "deserialized into another instance");
+    /* the tolerance is part of it: the same experiment without one serializes differently */
+    fmi2Component e = make("experiment3");
+    fmi2SetupExperiment(e, fmi2False, 0, 5.0, fmi2True, 6.0);
+    fmi2FMUstate q = NULL;
+    fmi2GetFMUstate(e, &q);
+    size_t size2 = 0;
+    fmi2Byte *buf2 = serialize(e, q, &size2);
+    CHECK(buf && buf2 && size2 == size && memcmp(buf, buf2, size) != 0, "the tolerance is not in the serialized "
+          "state");
+    /* an image of the old format (version 1: "MGPID\1", no experiment) is refused by its version */
+    if (buf) {
+        fmi2Byte *old = malloc(size);
+        memcpy(old, buf, size);
+        old[5] = 1;
+        fmi2FMUstate o = NULL;
+        last_log[0] = 0;
+        CHECK(fmi2DeSerializeFMUstate(d, old, size, &o) == fmi2Error && o == NULL && logged("version 1"),
+              "a version-1 image: '%s'", last_log);
+        free(old);
+    }
+    free(buf);
+    free(buf2);
+    fmi2FreeInstance(c);
+    fmi2FreeInstance(d);
+    fmi2FreeInstance(e);
+}
+
+/* Every state the FMU hands out can be restored: also one taken before initialization with parameters that
+ * only the relations at initialization refuse (the controller's own FMI layer checked them in every
+ * deserialized state, so it refused its own instantiated state with u_min > u_max). */
+static void test_state_before_init_restores(void) {
+    fmi2Component c = make("preinit");
+    CHECK(set1(c, PID_u_min, 2.0) == fmi2OK, "u_min = 2 > u_max on its own is in range");
+    fmi2FMUstate s = NULL, r = NULL;
+    CHECK(fmi2GetFMUstate(c, &s) == fmi2OK, "get state before init");
+    size_t size = 0;
+    fmi2Byte *buf = serialize(c, s, &size);
+    CHECK(buf && fmi2DeSerializeFMUstate(c, buf, size, &r) == fmi2OK, "own pre-init state refused: %s", last_log);
+    CHECK(fmi2SetFMUstate(c, r) == fmi2OK, "set restored pre-init state");
+    fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+    CHECK(fmi2EnterInitializationMode(c) == fmi2OK, "restored state is instantiated");
+    CHECK(fmi2ExitInitializationMode(c) == fmi2Error && logged("u_min < u_max"), "relations at init: %s", last_log);
+    /* an initialised state with the relations broken (edited, checksum recomputed) is refused */
+    set1(c, PID_u_min, 0.0);
+    CHECK(fmi2ExitInitializationMode(c) == fmi2OK, "init: %s", last_log);
+    fmi2FMUstate t = NULL;
+    fmi2GetFMUstate(c, &t);
+    size_t n = 0;
+    fmi2Byte *b = serialize(c, t, &n);
+    if (b) {
+        double bad = 2.0;
+        memcpy(b + 24 + 8 * PID_u_min, &bad, 8); /* the variables follow the 24-byte header (maglev_pid_fmu.c) */
+        unsigned long long h = 1469598103934665603ULL;
+        for (size_t k = 0; k + 8 < n; k++) h = (h ^ (unsigned char)b[k]) * 1099511628211ULL;
+        memcpy(b + n - 8, &h, 8);
+        fmi2FMUstate o = NULL;
+        CHECK(fmi2DeSerializeFMUstate(c, b, n, &o) == fmi2Error && logged("cannot have") && logged("u_min"),
+              "initialised state with u_min > u_max: %s", last_log);
+    }
+    free(b);
+    free(buf);
+    fmi2FreeInstance(c);
+}
+
+/* The glue reads resources/start_values.txt for every model: the controller's parameters too, kept by a
+ * reset, and a name that is no parameter of the controller refused. */
+static void test_start_values_from_resources(void) {
+    char dir[512], file[600], uri[700];
+    if (!make_temp_dir(dir, sizeof dir, "pid_start")) {
+        CHECK(0, "no temporary folder");
+        return;
+    }
+    snprintf(file, sizeof file, "%s/start_values.txt", dir);
+    folder_uri(dir, uri, sizeof uri);
+    CHECK(write_text(file, "kp 3.5  # a rig's gain\nts 0.002\n") == 0, "cannot write %s", file);
+    fmi2Component c = fmi2Instantiate("rig", fmi2CoSimulation, GUID, uri, &callbacks, fmi2False, fmi2False);
+    CHECK(c != NULL, "instantiate with start_values.txt: %s", last_log);
+    if (c) {
+        fmi2SetupExperiment(c, fmi2False, 0, 0.0, fmi2False, 0);
+        fmi2EnterInitializationMode(c);
+        CHECK(get1(c, PID_kp) == 3.5 && get1(c, PID_ts) == 0.002, "start values not read");
+        set1(c, PID_kp, 1.0);
+        CHECK(fmi2Reset(c) == fmi2OK, "reset");
+        fmi2EnterInitializationMode(c);
+        CHECK(get1(c, PID_kp) == 3.5, "reset dropped the start value: kp = %g", get1(c, PID_kp));
+        fmi2FreeInstance(c);
+    }
+    CHECK(write_text(file, "k_c 1e-5\n") == 0, "cannot write %s", file);
+    last_log[0] = 0;
+    CHECK(fmi2Instantiate("rig", fmi2CoSimulation, GUID, uri, &callbacks, fmi2False, fmi2False) == NULL &&
+          logged("k_c is not a parameter"), "a plant parameter for the controller: '%s'", last_log);
+    remove(file);
+    remove_dir(dir);
+}
+
+/* ---- FMI 3.0 (c/maglev_fmi3.c over the same glue and model) ---- */
+
+static char last_log3[1024];
+static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
+    (void)env; (void)status; (void)category;
+    snprintf(last_log3, sizeof last_log3, "%s", message);
+}
+
+static fmi3Instance make3(const char *name) {
+    return fmi3InstantiateCoSimulation(name, GUID, NULL, fmi3False, fmi3False, fmi3False, fmi3False, NULL, 0, NULL,
+                                       logger3, NULL);
+}
+
+static fmi3Status step3(fmi3Instance c, double t, double h, double *last) {
+    fmi3Boolean ev, term, early;
+    return fmi3DoStep(c, t, h, fmi3True, &ev, &term, &early, last);
+}
+
+/* The FMI 3.0 controller takes the same samples as the FMI 2.0 one, bit for bit; time is value reference
+ * MAGLEV_PID_NVARS; its FMU state holds the experiment fmi3EnterInitializationMode gave. */
+static void test_fmi3(void) {
+    CHECK(fmi3InstantiateCoSimulation("a", "{wrong}", NULL, 0, 0, 0, 0, NULL, 0, NULL, logger3, NULL) == NULL &&
+          strstr(last_log3, "instantiationToken"), "wrong token: %s", last_log3);
+    fmi3Instance c3 = make3("three");
+    fmi2Component c2 = make("two");
+    CHECK(c3 != NULL, "instantiate: %s", last_log3);
+    fmi3ValueReference vr[] = {PID_u_hold, PID_w0, PID_w1, PID_t_step, PID_anti_windup, PID_tf};
+    double val[] = {0.37, 0.40, 0.45, 0.005, 1, 0.002};
+    CHECK(fmi3SetFloat64(c3, vr, 6, val, 6) == fmi3OK, "set-up: %s", last_log3);
+    fmi2SetReal(c2, vr, 6, val);
+    CHECK(fmi3EnterInitializationMode(c3, fmi3False, 0, 0.0, fmi3False, 0) == fmi3OK, "enter: %s", last_log3);
+    fmi2SetupExperiment(c2, fmi2False, 0, 0.0, fmi2False, 0);
+    fmi2EnterInitializationMode(c2);
+    CHECK(fmi3ExitInitializationMode(c3) == fmi3OK && fmi2ExitInitializationMode(c2) == fmi2OK, "init: %s",
+          last_log3);
+    int same = 1;
+    for (int k = 0; k < 50; k++) {
+        double y = 0.40 + 0.05 * sin(0.2 * k), last = -1, u3 = NAN;
+        fmi3ValueReference ry = PID_y, ru = PID_u;
+        fmi3SetFloat64(c3, &ry, 1, &y, 1);
+        set1(c2, PID_y, y);
+        CHECK(step3(c3, k * 1e-3, 1e-3, &last) == fmi3OK && last == k * 1e-3 + 1e-3, "step %d: %s", k, last_log3);
+        fmi2DoStep(c2, k * 1e-3, 1e-3, fmi2True);
+        fmi3GetFloat64(c3, &ru, 1, &u3, 1);
+        same &= u3 == get1(c2, PID_u);
+    }
+    CHECK(same, "FMI 3.0 and FMI 2.0 controllers differ");
+    fmi3ValueReference vt = MAGLEV_PID_NVARS, bad = MAGLEV_PID_NVARS + 1;
+    double t = -1, x;
+    CHECK(fmi3GetFloat64(c3, &vt, 1, &t, 1) == fmi3OK && fabs(t - 0.05) < 1e-15, "time = %g", t);
+    CHECK(fmi3GetFloat64(c3, &bad, 1, &x, 1) == fmi3Error && strstr(last_log3, "unknown value reference"),
+          "vr after time: %s", last_log3);
+    fmi3FreeInstance(c3);
+    fmi2FreeInstance(c2);
+
+    /* the experiment in the FMU state: taken in initialization mode, set after a reset */
+    fmi3Instance e = make3("experiment");
+    CHECK(fmi3EnterInitializationMode(e, fmi3True, 1e-6, 5.0, fmi3True, 6.0) == fmi3OK, "enter: %s", last_log3);
+    fmi3FMUState s = NULL, r = NULL;
+    CHECK(fmi3GetFMUState(e, &s) == fmi3OK, "get state: %s", last_log3);
+    size_t size = 0;
+    fmi3SerializedFMUStateSize(e, s, &size);
+    fmi3Byte *buf = malloc(size);
+    CHECK(fmi3SerializeFMUState(e, s, buf, size) == fmi3OK, "serialize: %s", last_log3);
+    CHECK(fmi3Reset(e) == fmi3OK && fmi3SetFMUState(e, s) == fmi3OK, "reset, set: %s", last_log3);
+    fmi3Instance f = make3("other");
+    CHECK(fmi3DeserializeFMUState(f, buf, size, &r) == fmi3OK && fmi3SetFMUState(f, r) == fmi3OK,
+          "into another instance: %s", last_log3);
+    fmi3Instance both[2] = {e, f};
+    for (int k = 0; k < 2; k++) {
+        double last = -1;
+        CHECK(fmi3ExitInitializationMode(both[k]) == fmi3OK, "exit %d: %s", k, last_log3);
+        CHECK(step3(both[k], 5.0, 2.0, &last) == fmi3Error && strstr(last_log3, "stopTime") && last == 5.0,
+              "%d: a step past stopTime 6 s not refused: %s", k, last_log3);
+        CHECK(step3(both[k], 5.0, 1e-3, &last) == fmi3OK && last == 5.0 + 1e-3, "%d: step from 5 s: %s", k, last_log3);
+    }
+    free(buf);
+    fmi3FreeInstance(e);
+    fmi3FreeInstance(f);
+}
+
 int main(void) {
     test_instantiate_and_call_sequence();
     test_bad_values_named();
     test_samples_match_the_controller_alone();
     test_state_and_serialisation();
     test_step_work_bounded();
+    test_state_holds_experiment();
+    test_state_before_init_restores();
+    test_start_values_from_resources();
+    test_fmi3();
     printf("%d checks: %d passed, %d failed\n", checks, checks - failures, failures);
     return failures ? 1 : 0;
 }
