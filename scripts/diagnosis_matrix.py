@@ -3,6 +3,7 @@ acceptance benchmark over the disturbance family (false-positive rate and power)
 
     .venv/bin/python scripts/diagnosis_matrix.py [--seed N] [--json FILE]          # the matrix (~2 min)
     .venv/bin/python scripts/diagnosis_matrix.py --family 50 [--power 5] [--seed N]  # the benchmark
+    ... --emulator ivp    # either, on records of the independent emulator (maglev_cosim.emulator_ivp)
 
 The matrix: each row the record's undeclared effect (from the rig emulator), what the diagnosis
 selected, the estimates, and the RMS errors before and after.
@@ -31,6 +32,10 @@ from maglev_cosim.diagnosis import CATALOGUE, diagnose
 from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
 from maglev_cosim.record import read_record
 from maglev_cosim.synth import draw_disturbance, synth_record
+
+#: The record writer: the rig emulator's, or with ``--emulator ivp`` the independent emulator's
+#: (``maglev_cosim.emulator_ivp.synth_record``, same arguments; docs/diagnosis.md, "The independent emulator").
+SYNTH = synth_record
 
 #: The catalogue cases of the power benchmark: today's magnitudes (the matrix's).
 POWER_CASES: dict[str, dict] = {
@@ -100,7 +105,7 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
     for k in range(n_null):
         seed = seed0 + k
         dist = draw_disturbance(seed)
-        rec = read_record(synth_record(tmp / f"n{k}.csv", seed=seed, disturbance=dist), plausibility="warn")
+        rec = read_record(SYNTH(tmp / f"n{k}.csv", seed=seed, disturbance=dist), plausibility="warn")
         t0 = time.perf_counter()
         d = diagnose(rec)
         dt = time.perf_counter() - t0
@@ -119,7 +124,7 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
         for k in range(n_power):
             seed = seed0 + k
             dist = draw_disturbance(seed)
-            rec = read_record(synth_record(tmp / f"p{k}.csv", seed=seed, disturbance=dist, effects=planted),
+            rec = read_record(SYNTH(tmp / f"p{k}.csv", seed=seed, disturbance=dist, effects=planted),
                               plausibility="warn")
             t0 = time.perf_counter()
             d = diagnose(rec)
@@ -156,7 +161,24 @@ def main() -> None:
                     help="run the acceptance benchmark on N no-effect records instead of the matrix")
     ap.add_argument("--power", type=int, default=5, metavar="M",
                     help="with --family: each catalogue effect on the first M draws (default 5)")
+    ap.add_argument("--emulator", choices=["rig", "ivp"], default="rig",
+                    help="the records' emulator: rig (default) or ivp, the independent one written from the paper "
+                         "(the matrix then skips the rows with effects it does not have)")
+    ap.add_argument("--setting", action="append", default=[], metavar="NAME=VALUE",
+                    help="with --emulator ivp: one of its settings (pid_offset, f_y, v_c, method, rtol), repeatable")
     a = ap.parse_args()
+    global SYNTH
+    supported = None
+    if a.setting and a.emulator != "ivp":
+        ap.error("--setting belongs to --emulator ivp")
+    if a.emulator == "ivp":
+        from functools import partial
+
+        from maglev_cosim import emulator_ivp
+
+        settings = {k.strip(): (v.strip() if k.strip() == "method" else float(v))
+                    for k, v in (item.split("=", 1) for item in a.setting)}
+        SYNTH, supported = partial(emulator_ivp.synth_record, settings=settings), set(emulator_ivp.EFFECTS)
     if a.family:
         with tempfile.TemporaryDirectory() as tmp:
             res = family(a.family, min(a.power, a.family), a.seed, Path(tmp))
@@ -168,7 +190,10 @@ def main() -> None:
           f"{'20 ms ahead y/u':<20}{'after u/noise':>14}{'s':>6}  verdict")
     with tempfile.TemporaryDirectory() as tmp:
         for k, (name, kw) in enumerate(CASES):
-            path = synth_record(Path(tmp) / f"r{k}.csv", seed=a.seed, **kw)
+            if supported is not None and not set(kw.get("effects", {})) <= supported:
+                print(f"{name:<26}(skipped: the {a.emulator} emulator has no {', '.join(set(kw['effects']) - supported)})")
+                continue
+            path = SYNTH(Path(tmp) / f"r{k}.csv", seed=a.seed, **kw)
             rec = read_record(path)
             t0 = time.perf_counter()
             d = diagnose(rec, effects=TRIED.get(name))

@@ -504,9 +504,26 @@ def cmd_synth(a: argparse.Namespace) -> dict:
         params[k.strip()] = _finite(v)
     if a.period is not None and a.reference not in ("square", "sine"):
         raise CliError(f"--period applies to a square or sine reference, not {a.reference}")
-    _progress(f"synthesising {a.duration} s ({a.reference}) with effects {effects or 'none'}")
+    settings: dict[str, float | str] = {}
+    for spec in a.setting or []:
+        if a.emulator != "ivp":
+            raise CliError(f"--setting {spec!r}: settings belong to the independent emulator (--emulator ivp)")
+        if "=" not in spec:
+            raise CliError(f"--setting {spec!r}: expected NAME=VALUE")
+        k, v = (x.strip() for x in spec.split("=", 1))
+        try:
+            settings[k] = v if k == "method" else float(v)      # f_y = inf: white sensor noise
+        except ValueError:
+            raise CliError(f"--setting {spec!r}: {v!r} is not a number") from None
+    kw = {}
+    if a.emulator == "ivp":
+        from .emulator_ivp import synth_record  # noqa: F811 (the independent emulator, same arguments)
+
+        kw = {"settings": settings}
+    _progress(f"synthesising {a.duration} s ({a.reference}) with effects {effects or 'none'} "
+              f"({'the independent emulator' if a.emulator == 'ivp' else 'the rig emulator'})")
     path = synth_record(Path(a.out), effects=effects, reference=a.reference, duration=a.duration, seed=a.seed,
-                        noise=not a.no_noise, params=params or None, period=a.period)
+                        noise=not a.no_noise, params=params or None, period=a.period, **kw)
     print(f"wrote {path}")
     return {"record": str(path)}
 
@@ -727,6 +744,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=_positive, default=12.0, metavar="S", help="[s] (default 12)")
     s.add_argument("--seed", type=int, default=0, help="random seed of the noise and the staircase (default 0)")
     s.add_argument("--no-noise", action="store_true", help="no sensor noise, random force or quantisation")
+    s.add_argument("--emulator", choices=["rig", "ivp"], default="rig",
+                   help="rig: maglev_cosim.rig (default); ivp: the independent emulator written from the paper "
+                        "(maglev_cosim.emulator_ivp: solve_ivp, coloured sensor noise, the PID's output 0.3 of a "
+                        "sample late; effects amplifier_lag, force_lag, delay, sensor_nonlinearity, "
+                        "current_saturation, periodic_disturbance, coulomb_friction)")
+    s.add_argument("--setting", action="append", metavar="NAME=VALUE",
+                   help="with --emulator ivp: pid_offset (fraction of the sample, default 0.3), f_y (sensor noise "
+                        "corner [Hz], default 100, inf: white), v_c (friction smoothing [m/s]), method, rtol")
     s.lazy_epilog = _catalogue_help
     s.set_defaults(func=cmd_synth)
 
