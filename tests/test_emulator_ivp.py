@@ -101,6 +101,7 @@ def _overshoot(sim, w):
     return sim["y"][500:1000].max() - w[600]
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_lags_and_delay_cost_phase(square):
     """Amplifier lag, force lag and delay each raise the overshoot after the step up (base 0.069 MU)."""
     w, base = square
@@ -129,6 +130,7 @@ def test_sensor_nonlinearity_moves_the_held_position():
     assert s["y"][-1] == pytest.approx(W0, abs=1e-9)
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_current_limit_caps_the_current_and_shows_in_its_share():
     """A limit caps i; lowering it raises the share of samples at the limit. With a 0.15 s square
     the ball stays up with the limit active 4 % to 35 % of the samples (measured 0.040 at 0.70 A,
@@ -178,6 +180,7 @@ def test_pickup_shows_at_its_frequency(square):
     assert f[np.argmax(spec[f > 5]) + np.sum(f <= 5)] == pytest.approx(37.0, abs=0.5)
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_coulomb_friction_makes_the_controller_push_along_the_motion():
     """Friction of 2 % of the weight, smoothed over v_c = 1 mm/s, on a 2 s sine (3.2 ± 0.6 mm,
     |v| up to 3.8 mm/s): the controller supplies F_c·tanh(v/v_c) more in the direction of motion,
@@ -236,6 +239,7 @@ def test_sensor_noise_is_coloured_with_its_corner():
     assert abs(np.corrcoef(white[:-1], white[1:])[0, 1]) < 0.02
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_the_loop_reads_through_the_noise_and_feels_the_random_force():
     w = np.full(4000, W0)
     s = E.simulate(w, E.IvpConfig(quantise=False, sigma_F_rel=0.0, f_y=50.0, seed=3))
@@ -250,6 +254,7 @@ def test_the_loop_reads_through_the_noise_and_feels_the_random_force():
     assert np.std(s["x"]) > 1e-7                  # the ball moves under it
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_converters_put_y_and_u_on_their_grid():
     w = E._reference("square", 2.0, 1e-3, 0, 1.0, QUIET)
     for bits in (12, 10):
