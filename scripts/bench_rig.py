@@ -15,12 +15,11 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
-import re
 import sys
 import time
 from pathlib import Path
 
+import benchdoc
 from maglev_cosim import rigfit
 from maglev_cosim.rigs import load_rig
 
@@ -39,18 +38,6 @@ def _data_dir(arg: str | None) -> Path:
     sys.exit("bench_rig: the shared real records were not found (--data, $MAGLEV_REAL_DATA or ../shared/data/real)")
 
 
-def _machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores, {cpu}, Python {platform.python_version()}"
-
-
 def _skill_cell(p: dict, who: str) -> str:
     v = p["skill"].get(who)
     return "–" if v is None else f"{v:+.2f}"
@@ -59,7 +46,7 @@ def _skill_cell(p: dict, who: str) -> str:
 def section(res: dict, command: str, wall_s: float) -> str:
     comp = res["comparison"]
     lines = [SECTION, "",
-             f"Written by `scripts/bench_rig.py` on {datetime.date.today().isoformat()} ({_machine()}); wall time "
+             f"Written by `scripts/bench_rig.py` on {datetime.date.today().isoformat()} ({benchdoc.machine()}); wall time "
              f"{wall_s:.0f} s. The command it runs is equivalent to:", "", "```", command, "```", "",
              f"Verdict: **{res['verdict']}**.", "",
              "Median skill against 'stays put' of the gap predicted ahead (worst segment in brackets): the model "
@@ -91,13 +78,6 @@ def section(res: dict, command: str, wall_s: float) -> str:
     return "\n".join(lines)
 
 
-def write(doc: Path, text: str) -> None:
-    old = doc.read_text() if doc.exists() else "# Benchmarks and measured figures\n"
-    pat = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    new = pat.sub(lambda _: text + "\n", old) if pat.search(old) else old.rstrip("\n") + "\n\n" + text + "\n"
-    doc.write_text(new)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", help="the shared real records (default: $MAGLEV_REAL_DATA or ../shared/data/real)")
@@ -118,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     text = section(res, command, wall)
     print(text)
     if not a.no_write:
-        write(ROOT / "docs" / "benchmarks.md", text)
+        benchdoc.replace_section(SECTION, text)
         print(f"wrote the section of {ROOT / 'docs' / 'benchmarks.md'}")
     return 0
 
