@@ -485,6 +485,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     w = _reference(reference, duration, ts, seed, period, cfg)
     sim = simulate(w, cfg, ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max, noise=noise)
     from .record import write_record       # I/O only
+    from .synth import current_truth
 
     out = Path(out)
     write_record(out, sim["t"], sim["w"], sim["u"], sim["y"], ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max,
@@ -498,7 +499,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
              "disturbance": {k: getattr(cfg, k) for k in DISTURBANCE_KEYS},
              "settings": {k: getattr(cfg, k) for k in SETTINGS},
              "config": {k: v for k, v in asdict(cfg).items()},
-             "i_limited_share": float(np.mean(sim["i_limited"])),
+             **current_truth(sim["i"], sim["i_limited"] > 0),
              "contact_share": float(np.mean(sim["contact"] != 0))}
     Path(str(out) + ".truth.json").write_text(json.dumps(truth, indent=2, default=float))
     return out

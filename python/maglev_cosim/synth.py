@@ -34,6 +34,14 @@ EFFECTS: dict[str, tuple[str, ...]] = {
 PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD", "y_MU0")
 
 
+def current_truth(i: np.ndarray, limited: np.ndarray) -> dict:
+    """What a record's truth sidecar says of the coil current [A], for benchmarks that plant a
+    current limit by the share of samples it acts in: the percentiles 0..100 of the current, and the
+    share of the samples in which the amplifier is at its limit ``i_max``."""
+    return {"current_percentiles": np.percentile(i, np.arange(101)).tolist(),
+            "i_limited_share": float(np.mean(limited))}
+
+
 def parse_effect_spec(spec: str) -> tuple[str, dict[str, float]]:
     """``NAME:PARAM=VALUE[,PARAM=VALUE]`` -> (name, {param: value})."""
     if ":" not in spec:
@@ -154,6 +162,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     truth = {"effects": effects, "params": params or {}, "noise": noise, "seed": seed, "reference": kind,
              **({"period_s": period} if period else {}),
              "duration": duration, "pid": {"kp": kp, "ki": ki, "kd": kd},
-             "disturbance": {k: getattr(cfg, k) for k in DISTURBANCE_KEYS}}
+             "disturbance": {k: getattr(cfg, k) for k in DISTURBANCE_KEYS},
+             **current_truth(sim["i"], sim["i_limited"] > 0)}
     Path(str(out) + ".truth.json").write_text(json.dumps(truth, indent=2))
     return out
