@@ -26,7 +26,8 @@ def _run(w, **kw):
 
 
 def test_shares_no_code_with_the_model():
-    """Only params (values by name), numpy and scipy at import; the record writer (I/O) when writing."""
+    """Only params (values by name), the settings check the emulators share (emulation: no physics), numpy
+    and scipy at import; the record writer (I/O) when writing."""
     tree = ast.parse(inspect.getsource(E))
     imported = set()
     for node in ast.walk(tree):
@@ -35,7 +36,7 @@ def test_shares_no_code_with_the_model():
         elif isinstance(node, ast.Import):
             imported.update(a.name for a in node.names)
     ours = {m for m in imported if m.startswith(".") or m.startswith("maglev_cosim")}
-    assert ours == {".params", ".record"}, ours
+    assert ours == {".params", ".record", ".emulation"}, ours
     assert not imported & {"cffi", "ctypes"}
 
 

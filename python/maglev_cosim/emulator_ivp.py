@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
+from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth
 from .params import PARAMETER_SETS
 
 #: The paper's values (Section 3, LQ fit), taken by name; ``T_a`` is an effect here (off by default).
@@ -67,8 +68,6 @@ EFFECTS: dict[str, tuple[str, ...]] = {
 PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD", "y_MU0",
                 "x_min", "x_max", "x_cal")
 
-#: The disturbance settings :func:`maglev_cosim.synth.draw_disturbance` draws (same names and units).
-DISTURBANCE_KEYS = ("sigma_y", "sigma_F_rel", "tau_F_noise", "F_drift_rel", "tau_drift", "bits")
 
 #: Settings of this emulator alone (``synth_record(settings=...)``, ``--setting NAME=VALUE``).
 SETTINGS = ("pid_offset", "f_y", "v_c", "method", "rtol")
@@ -455,24 +454,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     ``f_y``, ``v_c``, ``method``, ``rtol``). The record's metadata name the emulator, the seed and
     the effects; the sidecar holds the whole configuration."""
     effects = {name: dict(pv) for name, pv in (effects or {}).items()}
-    values: dict[str, float] = {}
-    for name, pv in effects.items():
-        if name not in EFFECTS:
-            raise ValueError(f"effect {name!r} is not in this emulator: choose from {', '.join(EFFECTS)}")
-        for k in pv:
-            if k not in EFFECTS[name]:
-                raise ValueError(f"effect {name} has no parameter {k!r}: its parameters are {', '.join(EFFECTS[name])}")
-        values.update({k: float(v) for k, v in pv.items()})
-    for k in params or {}:
-        if k not in PLANT_PARAMS:
-            raise ValueError(f"unknown plant parameter {k!r}: choose from {', '.join(PLANT_PARAMS)}")
-    dist = dict(disturbance or {})
-    kp, ki, kd = (float(dist.pop(k, v)) for k, v in (("kp", kp), ("ki", ki), ("kd", kd)))
-    bad = sorted(set(dist) - set(DISTURBANCE_KEYS))
-    if bad:
-        raise ValueError(f"unknown disturbance setting(s) {', '.join(bad)}: choose from {', '.join(DISTURBANCE_KEYS)}")
-    if "bits" in dist:
-        dist["bits"] = int(dist["bits"])
+    values, dist, (kp, ki, kd) = checked_settings(effects, params, disturbance, (kp, ki, kd), EFFECTS, PLANT_PARAMS)
     own = dict(settings or {})
     bad = sorted(set(own) - set(SETTINGS))
     if bad:
@@ -485,7 +467,6 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     w = _reference(reference, duration, ts, seed, period, cfg)
     sim = simulate(w, cfg, ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max, noise=noise)
     from .record import write_record       # I/O only
-    from .synth import current_truth
 
     out = Path(out)
     write_record(out, sim["t"], sim["w"], sim["u"], sim["y"], ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max,

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth
 from .record import write_record
 from . import rig as _rig
 from .rig import RigConfig, simulate_rig
@@ -32,14 +33,6 @@ EFFECTS: dict[str, tuple[str, ...]] = {
 }
 
 PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD", "y_MU0")
-
-
-def current_truth(i: np.ndarray, limited: np.ndarray) -> dict:
-    """What a record's truth sidecar says of the coil current [A], for benchmarks that plant a
-    current limit by the share of samples it acts in: the percentiles 0..100 of the current, and the
-    share of the samples in which the amplifier is at its limit ``i_max``."""
-    return {"current_percentiles": np.percentile(i, np.arange(101)).tolist(),
-            "i_limited_share": float(np.mean(limited))}
 
 
 def parse_effect_spec(spec: str) -> tuple[str, dict[str, float]]:
@@ -74,7 +67,6 @@ FAMILY = {
     "bits": (10, 14),
     "kp": (1.5, 3.0), "ki": (1.0, 6.0), "kd": (0.006, 0.014),   # PID gains, kept when the loop is stable
 }
-DISTURBANCE_KEYS = ("sigma_y", "sigma_F_rel", "tau_F_noise", "F_drift_rel", "tau_drift", "bits")
 
 
 def draw_disturbance(seed: int, *, gains: bool = True) -> dict[str, float]:
@@ -132,24 +124,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     :func:`draw_disturbance`) over the emulator's defaults; PID gains in it override ``kp``, ``ki``, ``kd``."""
     kind = reference
     effects = effects or {}
-    values: dict[str, float] = {}
-    for name, pv in effects.items():
-        if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r}: choose from {', '.join(EFFECTS)}")
-        for k in pv:
-            if k not in EFFECTS[name]:
-                raise ValueError(f"effect {name} has no parameter {k!r}")
-        values.update(pv)
-    for k in params or {}:
-        if k not in PLANT_PARAMS:
-            raise ValueError(f"unknown plant parameter {k!r}: choose from {', '.join(PLANT_PARAMS)}")
-    dist = dict(disturbance or {})
-    kp, ki, kd = (float(dist.pop(k, v)) for k, v in (("kp", kp), ("ki", ki), ("kd", kd)))
-    bad = sorted(set(dist) - set(DISTURBANCE_KEYS))
-    if bad:
-        raise ValueError(f"unknown disturbance setting(s) {', '.join(bad)}: choose from {', '.join(DISTURBANCE_KEYS)}")
-    if "bits" in dist:
-        dist["bits"] = int(dist["bits"])
+    values, dist, (kp, ki, kd) = checked_settings(effects, params, disturbance, (kp, ki, kd), EFFECTS, PLANT_PARAMS)
     cfg = RigConfig().with_values(**{**(params or {}), **values, **dist}, seed=seed)
     if not noise:
         cfg = cfg.with_values(sigma_y=0.0, sigma_F_rel=0.0)
