@@ -549,8 +549,7 @@ def _truth_table(truth: dict, d: dict) -> str:
 class _Parser(argparse.ArgumentParser):
     """argparse with its errors in one line (no usage dump), like every other failure here."""
 
-    #: Builds the epilog when help is shown: the effect catalogue imports the diagnosis (scipy,
-    #: python-control), which every other command need not pay for at start-up.
+    #: Builds the epilog (the effect catalogue with its parameters' units) when help is shown.
     lazy_epilog = None
 
     def error(self, message: str) -> None:  # type: ignore[override]

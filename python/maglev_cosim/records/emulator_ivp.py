@@ -2,8 +2,8 @@
 
 It shares no code with the model the diagnosis fits: nothing here imports the C plant, its
 cffi face (``fast``, ``replay``), the pure-Python reference, the loop or the first emulator
-(``rig``). It takes from :mod:`maglev_cosim.plant.params` only parameter values, by name, and writes
-records with :func:`maglev_cosim.records.record.write_record` (I/O, imported when a record is written).
+(``emulator``). It takes from :mod:`maglev_cosim.plant.params` only parameter values, by name, and writes
+records with :func:`maglev_cosim.records.record.write_record` (I/O).
 What it shares with the model is the paper's equations (``../shared/design/plant.md``: Eq. 1, 2,
 8, 12, 13 and the PID of Eq. 24/25) and the parameter values; everything else is its own:
 
