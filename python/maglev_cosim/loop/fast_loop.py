@@ -16,7 +16,7 @@ from .pid import PID
 
 
 def _controller(m: SimpleNamespace, controller):
-    """Any controller (:data:`maglev_cosim.controllers.Controller`) as a C ``MaglevController``."""
+    """Any controller (:data:`maglev_cosim.loop.controllers.Controller`) as a C ``MaglevController``."""
     return m.ffi.new("MaglevController *", c_settings(controller or PID()))
 
 
@@ -25,10 +25,10 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
                 dF: np.ndarray | None = None, dy: np.ndarray | None = None, y_step: float = 0.0,
                 u_step: float = 0.0) -> dict[str, np.ndarray]:
     """The closed loop (plant + controller) over reference ``w`` [MU] in one C call: the low
-    level of :func:`maglev_cosim.loop.simulate` (``backend="fast"``), which most callers want.
+    level of :func:`maglev_cosim.loop.simulate.simulate` (``backend="fast"``), which most callers want.
 
     ``params``: a :class:`PlantParams` or FMU parameter values over the C defaults, the start
-    state included. ``pid``: the controller, any :data:`maglev_cosim.controllers.Controller`
+    state included. ``pid``: the controller, any :data:`maglev_cosim.loop.controllers.Controller`
     (default: the paper's PID, Eq. 24/25). ``u_hold`` [MU]: the settled
     input before t = 0 (default: the equilibrium input at ``x_start``). ``du`` [MU], ``dF`` [N],
     ``dy`` [MU]: signals injected at the actuator (added to the controller's output on its way to
