@@ -20,11 +20,11 @@ import time
 import numpy as np
 
 import benchdoc
-from maglev_cosim.bench import run_bench
-from maglev_cosim.linear import EQ18_POLES, PAPER_OPERATING_POINT, linearize, operating_point
-from maglev_cosim.loop import reference_signal, simulate
-from maglev_cosim.params import get_params
-from maglev_cosim.pid import PID
+from maglev_cosim.loop.pid import PID
+from maglev_cosim.loop.simulate import reference_signal, simulate
+from maglev_cosim.plant.linear import EQ18_POLES, PAPER_OPERATING_POINT, linearize, operating_point
+from maglev_cosim.plant.params import get_params
+from maglev_cosim.report.bench import run_bench
 
 
 def fmu_against_reference() -> tuple[str, float]:

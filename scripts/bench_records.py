@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import benchdoc
-from maglev_cosim.record import RecordError, read_record
+from maglev_cosim.records.record import RecordError, read_record
 
 HEAD = "# ts: 0.001\n# controller: pid\n# kp: 2.0\n# ki: 2.97\n# kd: 0.01\n# u_min: 0.0\n# u_max: 1.0\nt,w,u,y\n"
 

@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import benchdoc
-from maglev_cosim import rigfit
+from maglev_cosim.diagnosis import real_rig
 from maglev_cosim.rigs import load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -53,7 +53,7 @@ def section(res: dict, command: str, wall_s: float) -> str:
              "(physics with its effects and its calibrated disturbance model, driven by the measured PWM duty), "
              "the black-box baseline (one ridge regression per horizon on the last 30 ms of gap differences and "
              "the measured current and its square up to the predicted instant, fitted by the tool on the three "
-             "calibration records) and 'constant velocity'.", "", *rigfit.comparison_table(comp)]
+             "calibration records) and 'constant velocity'.", "", *real_rig.comparison_table(comp)]
     lines += ["", "Per segment: the current from the PWM duty (fit %), and the skill of model / black box at each "
               "horizon.", "", "| segment | role | current from PWM | 5 ms | 20 ms | 50 ms |", "|---|---|---|---|---|---|"]
     rows = [(s["label"], "calibration", s["after"]) for e in res["records"] for s in e["segments"]]
@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
                + "".join(" --validate " + f'"$I/{n} - KF.mat"' for n in VALIDATION)
                + " --rig inteco-mls2em --out out/inteco")
     t0 = time.perf_counter()
-    res = rigfit.run(load_rig("inteco-mls2em"), cal, a.out, validate=val,
+    res = real_rig.run(load_rig("inteco-mls2em"), cal, a.out, validate=val,
                      progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True))
     wall = time.perf_counter() - t0
     text = section(res, command, wall)

@@ -3,13 +3,13 @@ acceptance benchmark over the disturbance family (false-positive rate and power)
 
     .venv/bin/python scripts/diagnosis_matrix.py [--seed N] [--json FILE]          # the matrix (~2 min)
     .venv/bin/python scripts/diagnosis_matrix.py --family 50 [--power 5] [--seed N]  # the benchmark
-    ... --emulator ivp    # either, on records of the independent emulator (maglev_cosim.emulator_ivp)
+    ... --emulator ivp    # either, on records of the independent emulator (maglev_cosim.records.emulator_ivp)
 
 The matrix: each row the record's undeclared effect (from the rig emulator), what the diagnosis
 selected, the estimates, and the RMS errors before and after.
 
 The benchmark (``--family N``): N records with no effect, each with its own draw from the
-disturbance family (``maglev_cosim.synth.FAMILY``: white or coloured force noise with corners
+disturbance family (``maglev_cosim.records.synth.FAMILY``: white or coloured force noise with corners
 5 to 50 Hz at 0.1 to 1 % of the weight, a drifting force offset, sensor noise 1e-4 to 1.5e-3 MU,
 10- to 14-bit converters, stable PID gains other than the paper's); the false-positive rate is
 the share of them where any effect is selected. Then (``--power M``) each catalogue effect at
@@ -40,12 +40,12 @@ import benchdoc
 
 from maglev_cosim.diagnosis import CATALOGUE, diagnose
 from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
-from maglev_cosim.params import get_params
-from maglev_cosim.record import read_record
-from maglev_cosim.synth import draw_disturbance, synth_record
+from maglev_cosim.plant.params import get_params
+from maglev_cosim.records.record import read_record
+from maglev_cosim.records.synth import draw_disturbance, synth_record
 
 #: The record writer: the rig emulator's, or with ``--emulator ivp`` the independent emulator's
-#: (``maglev_cosim.emulator_ivp.synth_record``, same arguments; docs/diagnosis.md, "The independent emulator").
+#: (``maglev_cosim.records.emulator_ivp.synth_record``, same arguments; docs/diagnosis.md, "The independent emulator").
 SYNTH = synth_record
 
 #: The catalogue cases of the power benchmark: today's magnitudes (the matrix's).
@@ -146,8 +146,8 @@ def _describe(dist: dict) -> str:
             f"pid={dist.get('kp', 2):.2f}/{dist.get('ki', 2.97):.2f}/{dist.get('kd', 0.01):.4f}")
 
 
-EMULATOR_NAMES = {"rig": "the project's emulator (`maglev_cosim.rig`)",
-                  "ivp": "the independent emulator (`maglev_cosim.emulator_ivp`, written from the paper)"}
+EMULATOR_NAMES = {"rig": "the project's emulator (`maglev_cosim.records.emulator`)",
+                  "ivp": "the independent emulator (`maglev_cosim.records.emulator_ivp`, written from the paper)"}
 
 
 def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n_friction: int = 0) -> dict:
@@ -323,7 +323,7 @@ def main() -> None:
     if a.emulator == "ivp":
         from functools import partial
 
-        from maglev_cosim import emulator_ivp
+        from maglev_cosim.records import emulator_ivp
 
         settings = {k.strip(): (v.strip() if k.strip() == "method" else float(v))
                     for k, v in (item.split("=", 1) for item in a.setting)}

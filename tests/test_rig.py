@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from maglev_cosim.record import read_record
-from maglev_cosim.rig import LSB, RigConfig, position_to_mu, reference, simulate_rig
-from maglev_cosim.synth import parse_effect_spec, synth_record
+from maglev_cosim.records.record import read_record
+from maglev_cosim.records.emulator import LSB, RigConfig, position_to_mu, reference, simulate_rig
+from maglev_cosim.records.synth import parse_effect_spec, synth_record
 
 
 def quiet(**kw) -> RigConfig:

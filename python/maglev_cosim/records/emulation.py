@@ -1,4 +1,4 @@
-"""What the two emulators (:mod:`maglev_cosim.rig` and :mod:`maglev_cosim.emulator_ivp`) share
+"""What the two emulators (:mod:`maglev_cosim.records.emulator` and :mod:`maglev_cosim.records.emulator_ivp`) share
 that is not physics: the check of a synthetic record's settings, and the truth sidecar's
 figures of the coil current. Imports nothing of the package, so the independent emulator stays
 apart from the model (``tests/test_emulator_ivp.py``)."""
@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: The rig noise and converter settings a synthetic record takes (:func:`maglev_cosim.synth.draw_disturbance`).
+#: The rig noise and converter settings a synthetic record takes (:func:`maglev_cosim.records.synth.draw_disturbance`).
 DISTURBANCE_KEYS = ("sigma_y", "sigma_F_rel", "tau_F_noise", "F_drift_rel", "tau_drift", "bits")
 
 

@@ -1,4 +1,4 @@
-"""Synthetic records from the rig emulator (:mod:`.rig`), with an undeclared effect.
+"""Synthetic records from the rig emulator (:mod:`.emulator`), with an undeclared effect.
 
 The record carries the controller's metadata and the reference kind and seed, never the
 effect; the truth goes to a sidecar ``<record>.truth.json`` that the diagnosis never reads.
@@ -11,10 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..loop.design import discrete_closed_loop
+from ..loop.pid import PID
+from ..plant.params import get_params
+from . import emulator as _rig
 from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth
+from .emulator import RigConfig, simulate_rig
 from .record import write_record
-from . import rig as _rig
-from .rig import RigConfig, simulate_rig
 
 #: Effect name -> its parameters (rig names = FMU names for the catalogue).
 EFFECTS: dict[str, tuple[str, ...]] = {
@@ -90,10 +93,6 @@ def draw_disturbance(seed: int, *, gains: bool = True) -> dict[str, float]:
         "bits": int(rng.integers(f["bits"][0], f["bits"][1] + 1)),
     }
     if gains:
-        from .analysis import discrete_closed_loop
-        from .params import get_params
-        from .pid import PID
-
         p = get_params("baseline")
 
         def damped(pid: PID, x: float) -> bool:

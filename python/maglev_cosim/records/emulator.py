@@ -14,7 +14,7 @@ a real rig has:
 - the paper's PID with its output limits.
 
 The disturbance family is wider than these defaults (``RigConfig`` fields, and
-:func:`maglev_cosim.synth.draw_disturbance` draws from it): white force noise held per sample
+:func:`maglev_cosim.records.synth.draw_disturbance` draws from it): white force noise held per sample
 (``tau_F_noise = 0``) or coloured at any corner, a slowly drifting force offset (``F_drift_rel``,
 an Ornstein-Uhlenbeck process with time constant ``tau_drift``), any sensor noise level, and
 converters of 10 to 16 bits (``bits``).
