@@ -77,9 +77,12 @@ ON_BOUND = 1e-3
 #: gross cases, the test against the loop's signals below is the sharp one.
 FLOOR_RATIO = 1.8
 #: The final model's random-force RMS over the calibrated baseline's, above which the disturbance
-#: estimate has grown to explain what the effects added do not (no-effect records, seeds 200-225:
-#: 0.65 to 1.22; an effect found correctly lowers it, to 0.04-0.1 for a delay or a pickup).
-FORCE_GROWTH = 1.5
+#: estimate has grown to explain what the effects added do not; judged only when effects were added.
+#: The estimate is weakly identified at low corners: the final model of a no-effect record (the
+#: calibrated baseline refitted on the whole record) needed 0.65 to 1.22 times the baseline's on
+#: seeds 200-225, but 4.0 on seed 1513 (a 0.1 Hz drift under 1.5e-3 MU of sensor noise); an effect
+#: found correctly lowers it, to 0.04-0.1 for a delay or a pickup.
+FORCE_GROWTH = 3.0
 #: Probability with which a model that lacks nothing fails the test of the innovations against the
 #: reference and the motion (chi-square of N·R², :func:`reference_share`) ...
 REFERENCE_ALPHA = 1e-4
@@ -397,7 +400,7 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
             absorbed.append(f"its {HORIZON_S * 1e3:.0f} ms prediction error is {floor['ratio_y']:.2f} (y) and "
                             f"{floor['ratio_u']:.2f} (u) times what it leaves on records it simulates itself with "
                             f"its own disturbance estimate (at most {FLOOR_RATIO} at the noise floor)")
-        if growth > FORCE_GROWTH:
+        if selected and growth > FORCE_GROWTH:
             absorbed.append(f"its random force ({noise.q_force * 1e3:.3g} mN RMS, corner {noise.f_force:.3g} Hz) is "
                             f"{growth:.2f} times the calibrated baseline's ({noise_before.q_force * 1e3:.3g} mN, "
                             f"{noise_before.f_force:.3g} Hz; at most {FORCE_GROWTH} when the effects added explain "
