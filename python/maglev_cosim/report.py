@@ -237,7 +237,7 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
     # filter (their predictable share decides `unexplained`), against its past, the reference and
     # the input; the free-run residual is autocorrelated by nature (the loop filters the random force)
     # and is judged against the model's own records instead (verdict.free_run_floor), so it is not here.
-    fig, ax = plt.subplots(1, 3, figsize=(13, 3.9), sharex=True)
+    fig, ax = plt.subplots(1, 3, figsize=(13, 4.4), sharex=True)
     max_lag = int(round(0.05 / rec.ts))
     if d.verdict is not None:
         innov = d.verdict.after.sims["innov"]
@@ -260,7 +260,7 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
             a.set_xlabel("lag [ms]")
         ax[0].legend(fontsize=7, loc="upper right")
         share = d.verdict.predictable_share["after"]
-        what = (f"one-step innovations of the final model's Kalman filter (the residual the verdict judges: "
+        what = (f"one-step innovations of the final model's Kalman filter\n(the residual the verdict judges: "
                 f"{100 * share:.1f} % predictable from their past and the input)")
     else:
         for a in ax:
@@ -371,7 +371,17 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
                   f"force of {v.noise.q_force * 1e3:.3g} mN RMS (corner {v.noise.f_force:.3g} Hz) and a sensor "
                   f"noise of {v.noise.r_sensor:.3g} MU RMS, estimated from the innovations. What the final model "
                   f"leaves in the innovations is {100 * v.predictable_share['after']:.1f} % predictable (baseline: "
-                  f"{100 * v.predictable_share['before']:.1f} %).", ""]
+                  f"{100 * v.predictable_share['before']:.1f} %)."]
+        rule = v.noise_floor or {}
+        fl, rs = rule.get("floor"), rule.get("reference_share")
+        if fl and rs:
+            lines[-1] += (f" Against the floor its own disturbance model implies (docs/diagnosis.md, the noise-floor "
+                          f"rule): its {fl['horizon_s'] * 1e3:.0f} ms prediction error is {fl['ratio_y']:.2f} (y) and "
+                          f"{fl['ratio_u']:.2f} (u) times what it leaves on records it simulates itself; the reference's "
+                          f"past and the ball's motion predict {100 * rs['r2']:.2f} % of its innovations "
+                          f"({100 * rs.get('own_records_r2', 0.0):.2f} % on its own records); its random force is "
+                          f"{rule['force_growth']:.2f} times the calibrated baseline's.")
+        lines.append("")
     if d.warnings:
         lines += ["**Warnings**:", ""] + [f"- {w}" for w in d.warnings] + [""]
     ctrl = (f"controller {type(rec.controller).__name__} declared by `{rec.controller_file}`"
