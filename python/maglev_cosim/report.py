@@ -235,8 +235,8 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
 
     # MATLAB resid on what the verdict judges: the one-step innovations of the final model's Kalman
     # filter (their predictable share decides `unexplained`), against its past, the reference and
-    # the input; the free-run residual is autocorrelated by nature (the loop filters the random force)
-    # and is judged against the model's own records instead (verdict.free_run_floor), so it is not here.
+    # the input; the free-run residual is autocorrelated by nature (the loop filters the random force),
+    # so a white-noise band says nothing of it: it is in residual.png and spectrum.png.
     fig, ax = plt.subplots(1, 3, figsize=(13, 4.4), sharex=True)
     max_lag = int(round(0.05 / rec.ts))
     if d.verdict is not None:
