@@ -96,7 +96,8 @@ class Diagnosis:
             "elapsed_s": self.elapsed,
             **({"noise_model": self.verdict.noise.to_json(), "noise_model_before": self.verdict.noise_before.to_json(),
                 "innovations_predictable_share": self.verdict.predictable_share,
-                "location_evidence": self.verdict.location_evidence} if self.verdict else {}),
+                "location_evidence": self.verdict.location_evidence,
+                "noise_floor_rule": self.verdict.noise_floor} if self.verdict else {}),
         }
 
 
@@ -217,6 +218,14 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
     if eff.is_off(vals):
         ok = False
         stats = {**stats, "off": True}
+    if ok:
+        # the effect's own signature (a pickup steady through the record, no harmonic of the reference)
+        steady, evidence = eff.consistent(prob, vals)
+        if evidence:
+            stats = {**stats, "consistency": evidence}
+        if not steady:
+            ok = False
+            stats = {**stats, "inconsistent": True}
     errs = rms(prob.rec, prob.free_run(vals))
     entry = {"effect": res["effect"], "round": rnd, "parameters": {p: vals[p] for p in eff.params}, **errs,
              "accepted": ok, "held_out_cost_before": hold_before, "held_out_cost_after": hold_after, **stats,

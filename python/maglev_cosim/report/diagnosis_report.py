@@ -183,22 +183,40 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
     plt.close(fig)
     files.append("spectrum.png")
 
-    # MATLAB resid: is what the final model leaves white, and independent of the reference?
-    fig, ax = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
+    # MATLAB resid on what the verdict judges: the one-step innovations of the final model's Kalman
+    # filter (their predictable share decides `unexplained`), against its past, the reference and
+    # the input; the free-run residual is autocorrelated by nature (the loop filters the random force),
+    # so a white-noise band says nothing of it: it is in residual.png and spectrum.png.
+    fig, ax = plt.subplots(1, 3, figsize=(13, 4.4), sharex=True)
     max_lag = int(round(0.05 / rec.ts))
-    for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
-        r = resid(meas - after[sig], rec.w, max_lag=max_lag)
-        for j, (vals, title) in enumerate(((r.auto, f"autocorrelation of the {sig} residual"),
-                                            (r.cross, f"cross-correlation of the {sig} residual with w"))):
-            ax[k, j].vlines(r.lags * rec.ts * 1e3, 0, vals, color="tab:blue", lw=1)
-            ax[k, j].axhspan(-r.band, r.band, color="tab:orange", alpha=0.25,
-                             label=f"{100 * r.confidence:.0f} % band of a white residual")
-            ax[k, j].set_title(title, fontsize=9)
-            ax[k, j].axhline(0, color="0.5", lw=0.6)
-        ax[k, 0].legend(fontsize=7, loc="upper right")
-    for j in range(2):
-        ax[1, j].set_xlabel("lag [ms]")
-    fig.suptitle("Residual analysis of the final model (as MATLAB's resid)" + "\n" + model, fontsize=10)
+    if d.verdict is not None:
+        innov = d.verdict.after.sims["innov"]
+        ok = np.isfinite(innov)
+        e = np.where(ok, innov, 0.0)
+        r_w = resid(e, rec.w, max_lag=max_lag)
+        r_u = resid(e, rec.u, max_lag=max_lag)
+        panels = ((r_w.lags, r_w.auto, r_w.band, "autocorrelation", "innovations of y: autocorrelation"),
+                  (r_w.lags, r_w.cross, r_w.band, "cross-correlation with w",
+                   "innovations of y against the reference w"),
+                  (r_u.lags, r_u.cross, r_u.band, "cross-correlation with u",
+                   "innovations of y against the input u"))
+        for a, (lags, vals, band, ylabel, title) in zip(ax, panels):
+            a.vlines(lags * rec.ts * 1e3, 0, vals, color="tab:blue", lw=1)
+            a.axhspan(-band, band, color="tab:orange", alpha=0.25,
+                      label=f"{100 * r_w.confidence:.0f} % band of a white residual")
+            a.axhline(0, color="0.5", lw=0.6)
+            a.set_title(title, fontsize=9)
+            a.set_ylabel(ylabel)
+            a.set_xlabel("lag [ms]")
+        ax[0].legend(fontsize=7, loc="upper right")
+        share = d.verdict.predictable_share["after"]
+        what = (f"one-step innovations of the final model's Kalman filter\n(the residual the verdict judges: "
+                f"{100 * share:.1f} % predictable from their past and the input)")
+    else:
+        for a in ax:
+            a.set_axis_off()
+        what = "no verdict: no innovations"
+    fig.suptitle(f"Residual analysis of the final model (as MATLAB's resid): {what}" + "\n" + model, fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "resid.png", dpi=110)
     plt.close(fig)
@@ -256,6 +274,11 @@ def _verdict_sentence(d: Diagnosis) -> str:
         return "The calibrated model with " + ", ".join(d.selected) + " explains the record."
     if v == "no effect":
         return "The calibrated baseline already explains the record: no effect of the catalogue is missing."
+    if v == "explained in part":
+        loc = (d.verdict.noise_floor or {}).get("location") or "undetermined"
+        return ("The calibrated model with " + ", ".join(d.selected) + " explains part of the record; its disturbance "
+                "estimate explains the rest, which it should not (see the warnings)"
+                + ("." if loc == "undetermined" else f": what remains enters most likely at the {loc}."))
     if v == "calibration failed":
         return "The calibration ended on a bound of a parameter's range: the model does not fit this record."
     loc = v.split(":", 1)[1].strip()
@@ -294,7 +317,17 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
                   f"force of {v.noise.q_force * 1e3:.3g} mN RMS (corner {v.noise.f_force:.3g} Hz) and a sensor "
                   f"noise of {v.noise.r_sensor:.3g} MU RMS, estimated from the innovations. What the final model "
                   f"leaves in the innovations is {100 * v.predictable_share['after']:.1f} % predictable (baseline: "
-                  f"{100 * v.predictable_share['before']:.1f} %).", ""]
+                  f"{100 * v.predictable_share['before']:.1f} %)."]
+        rule = v.noise_floor or {}
+        fl, rs = rule.get("floor"), rule.get("reference_share")
+        if fl and rs:
+            lines[-1] += (f" Against the floor its own disturbance model implies (docs/diagnosis.md, the noise-floor "
+                          f"rule): its {fl['horizon_s'] * 1e3:.0f} ms prediction error is {fl['ratio_y']:.2f} (y) and "
+                          f"{fl['ratio_u']:.2f} (u) times what it leaves on records it simulates itself; the reference's "
+                          f"past and the ball's motion predict {100 * rs['r2']:.2f} % of its innovations "
+                          f"({100 * rs.get('own_records_r2', 0.0):.2f} % on its own records); its random force is "
+                          f"{rule['force_growth']:.2f} times the calibrated baseline's.")
+        lines.append("")
     if d.warnings:
         lines += ["**Warnings**:", ""] + [f"- {w}" for w in d.warnings] + [""]
     ctrl = (f"controller {type(rec.controller).__name__} declared by `{rec.controller_file}`"
@@ -339,13 +372,22 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
                 lines.append(f"| {p} | {_fmt(d.parameters[p])} | {_fmt(d.uncertainties.get(p, float('nan')))} "
                              f"| {units[p]} |")
         lines.append("")
-    lines += ["### Calibrated baseline parameters", "", "| parameter | value | ± | Section 3 | unit |",
-              "|---|---|---|---|---|"]
-
     paper = baseline_params()
+    # the calibrated baseline's values (the "before" model: diagnosis.json's calibrated_baseline),
+    # then the final model's, refitted with the effects, with their standard errors
+    lines += ["### Calibrated baseline parameters", "",
+              "The `baseline` set calibrated on the record, before any effect (the \"before\" model; "
+              "`calibrated_baseline` in diagnosis.json):", "",
+              "| parameter | calibrated baseline | Section 3 | unit |", "|---|---|---|---|"]
+    for name in ("k_c", "x_0", "k_FV", "u_0"):
+        lines.append(f"| {name} | {_fmt(float(d.calibrated_baseline[name]))} | {_fmt(paper[name])} | {units[name]} |")
+    lines += ["", "### Final model's calibrated parameters", "",
+              "The same parameters of the final model (" + (", ".join(d.selected) or "no effect")
+              + "), refitted on the whole record (`parameters` in diagnosis.json; ±1 standard error):", "",
+              "| parameter | final model | ± | calibrated baseline | unit |", "|---|---|---|---|---|"]
     for name in ("k_c", "x_0", "k_FV", "u_0"):
         lines.append(f"| {name} | {_fmt(d.parameters[name])} | {_fmt(d.uncertainties.get(name, float('nan')))} "
-                     f"| {_fmt(paper[name])} | {units[name]} |")
+                     f"| {_fmt(float(d.calibrated_baseline[name]))} | {units[name]} |")
     lines += ["", "The A/D offset y_MU0 is not calibrated: in a regulated loop it shifts the picture exactly "
               "as x_0 does.", ""]
     lines += ["## Candidates", "", "| round | effect | parameters | rms_y [MU] | rms_u [MU] | held-out cost change | LR stat | "
