@@ -13,14 +13,14 @@ from maglev_cosim.measured import Segment
 from maglev_cosim.rigs import load_rig
 
 
-def _record(rig, force_pct: np.ndarray, seed: int) -> rigfit.RigRecord:
-    """The Inteco model under the shipped LQI, the gap stepping between 10 and 8.5 mm every second,
-    with a force ``force_pct`` [% of the weight] on the ball, read through 10 um of sensor noise
-    and 5 mA of current noise."""
-    p = rig.params
+def _record(rig, force_pct: np.ndarray, seed: int, params=None, period: float = 1.0) -> rigfit.RigRecord:
+    """The Inteco model (``params``, default the rig's) under the shipped LQI, the gap stepping
+    between 10 and 8.5 mm every ``period`` seconds, with a force ``force_pct`` [% of the weight] on the ball,
+    read through 10 um of sensor noise and 5 mA of current noise."""
+    p = params or rig.params
     n = len(force_pct)
     rng = np.random.default_rng(seed)
-    gap_ref = np.where((np.arange(n) * 1e-3 // 1.0) % 2 == 0, 0.010, 0.0085)
+    gap_ref = np.where((np.arange(n) * 1e-3 // period) % 2 == 0, 0.010, 0.0085)
     x0 = float(rig.to_x(0.010))
     i0 = rig.equilibrium_current(0.010)
     start = p.replace(x_start=x0, v_start=0.0, i_start=i0)
@@ -82,3 +82,33 @@ def test_the_figures_show_the_black_box_beside_the_model_and_the_verdict_heeds_i
     verdict, why = rigfit.judge_against_black_box("explained", {"calibration": won, "validation": lost})
     assert verdict == "explained in part" and "50 ms" in why[0] and "20 ms:" not in why[0]
     assert rigfit.judge_against_black_box("unexplained: mechanics", {"validation": lost})[0] == "unexplained: mechanics"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("planted", [True, False])
+def test_the_located_correction_recovers_a_planted_friction_and_viscous_force(planted):
+    """Records of the rig's own model with a planted force of velocity (a viscous 0.4 N·s/m and a
+    Coulomb friction of 2 % of the weight: the plant's k_FV and F_c), replayed by the model without
+    them: the located correction at the mechanics recovers both at the centre gap (within 3σ of its
+    own uncertainty, or 25 %: the plant's friction is smoothed over 0.1 mm/s, the correction's over
+    the records' median speed), finds the friction shape better than the viscous one held out, and is
+    selected; with none planted it stays near zero and is not selected."""
+    rig = load_rig("inteco-mls2em")
+    w = rig.params.m_k * rig.params.g
+    k_fv, f_c = (0.4, 0.02 * w) if planted else (0.0, 0.0)
+    truth = rig.params.replace(k_FV=k_fv, F_c=f_c)
+    # steps every 0.7 s: both gaps in the even and in the odd held-out blocks of 1 s
+    recs = [_record(rig, np.zeros(4000), seed=s, params=truth, period=0.7) for s in (21, 22)]
+    res = rigfit.correction_search(rig, recs, rig.params, {**NOISE, "q_force": 1e-3, "f_force": 20.0},
+                                   ridge=(1e-3, 1e-2))
+    s = res["summary"]
+    assert res["basis"]["n_x"] == rigfit.CORRECTION_NX and len(res["coef"]) == 3 * rigfit.CORRECTION_NX
+    if planted:
+        assert res["selected"] and res["held_out_gain"] > 0.2, res["held_out_gain"]
+        assert abs(s["viscous_N_s_per_m"] - k_fv) <= max(3 * s["viscous_sigma"], 0.25 * k_fv), s
+        assert abs(s["friction_N"] - f_c) <= max(3 * s["friction_sigma"], 0.25 * f_c), s
+        assert s["held_out_gain_by_shape"]["static+friction"] > s["held_out_gain_by_shape"]["static+viscous"]
+    else:
+        assert not res["selected"], res["held_out_gain"]
+        assert abs(s["viscous_N_s_per_m"]) < 0.1 and abs(s["friction_N"]) < 0.003 * w, s
+        assert abs(s["static_pct_weight"]) < 0.3, s
