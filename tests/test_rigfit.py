@@ -112,3 +112,26 @@ def test_the_located_correction_recovers_a_planted_friction_and_viscous_force(pl
         assert not res["selected"], res["held_out_gain"]
         assert abs(s["viscous_N_s_per_m"]) < 0.1 and abs(s["friction_N"]) < 0.003 * w, s
         assert abs(s["static_pct_weight"]) < 0.3, s
+
+
+def test_the_correction_force_is_the_same_formula_in_python_and_c():
+    """rigfit.correction_force (figures, summary) and maglev_correction_force (the filter's model)
+    agree, and a correction that is only a viscous force slows the predicted ball as the plant's own
+    damping k_FV does (held over each 1 ms sample instead of integrated: close, not equal)."""
+    m = fast._lib()
+    rng = np.random.default_rng(5)
+    corr = {"n_x": 3, "x_c": -0.01, "x_s": 8e-4, "v_s": 5e-3, "v_c": 1e-3, "coef": list(rng.normal(0, 0.01, 9))}
+    c = m.ffi.new("MaglevCorrection *", {**{k: corr[k] for k in ("n_x", "x_c", "x_s", "v_s", "v_c")},
+                                          "coef": corr["coef"] + [0.0] * 3})
+    for x, v in zip(rng.uniform(-0.012, -0.008, 20), rng.normal(0, 0.01, 20)):
+        assert m.lib.maglev_correction_force(c, x, v) == pytest.approx(float(rigfit.correction_force(corr, x, v)),
+                                                                        rel=1e-12, abs=1e-15)
+    rig = load_rig("inteco-mls2em")
+    r = _record(rig, np.zeros(3000), seed=7)
+    k = 0.5
+    viscous = {"n_x": 1, "x_c": -0.01, "x_s": 1e-3, "v_s": 1e-2, "v_c": 1e-3, "coef": [0.0, -k * 1e-2, 0.0]}
+    a = rigfit.predict(rig, r, rig.params.replace(k_FV=k), 0.05, noise=NOISE)["y_pred"]
+    b = rigfit.predict(rig, r, rig.params, 0.05, noise={**NOISE, "correction": viscous})["y_pred"]
+    c0 = rigfit.predict(rig, r, rig.params, 0.05, noise=NOISE)["y_pred"]
+    ok = np.isfinite(a) & np.isfinite(b)
+    assert np.sqrt(np.mean((a - b)[ok] ** 2)) < 0.05 * np.sqrt(np.mean((a - c0)[ok] ** 2))

@@ -672,19 +672,19 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
                       min_gain: float | None = None, max_nfev: int = 5, own: dict | None = None) -> dict:
     """The located correction at the mechanics, fitted by the prediction cost of the calibration
     (the gap 20 and 50 ms ahead, :func:`_errors`) and selected like an effect: its coefficients are
-    fitted on the predictions that end in the even blocks (Gauss-Newton through the filter and the
-    unstable plant, the Jacobian by finite differences at no correction; the problem is linear in
-    the coefficients but for the filter and the plant), for each ridge weight of ``ridge``, and
-    judged on the odd ones. The ridge weight with the lowest held-out cost is kept; when its
-    held-out cost change reaches ``min_gain`` (default :data:`MIN_EFFECT_GAIN`) the correction is
-    selected and refitted on every block (``iterations`` Gauss-Newton steps, the Jacobian refreshed).
-    The same is done for each velocity shape alone (the position terms with only the static,
-    viscous or friction part, and static + viscous, static + friction) to tell which shape carries
-    the correction. JSON-ready: ``basis``, ``coef`` and ``sigma`` [N] (±1σ from the Jacobian, a lower
+    fitted on the predictions that end in the even blocks (trust-region least squares through the
+    filter and the unstable plant, ``max_nfev`` steps, a ridge penalty on the coefficients), for each
+    ridge weight of ``ridge``, and judged on the odd ones. The ridge weight with the lowest held-out
+    cost is kept; the correction is selected when its held-out cost change reaches ``min_gain``
+    (default :data:`MIN_EFFECT_GAIN`), and refitted on every block (also when not selected: its
+    shape is reported either way). Each velocity shape alone (static + viscous, static + friction,
+    the same at every gap) is fitted and judged the same way, to tell which one carries the
+    correction. JSON-ready: ``basis``, ``coef`` and ``sigma`` [N] (±1σ from the Jacobian, a lower
     bound: overlapping horizons' errors are correlated), ``ridge``, ``held_out`` (cost per ridge
-    weight and per shape), ``held_out_gain`` (> 0: better), ``selected``, and the correction ready
-    for the model in ``correction`` (None when not selected). ``own``: each segment's own parameters
-    by ``id`` (its coil and force gain, :func:`_own_coil`), as its figures use them."""
+    weight and per shape), ``held_out_gain`` (> 0: better), ``selected``, ``summary``
+    (:func:`correction_summary`), and the correction ready for the model in ``correction`` (None when
+    not selected). ``own``: each segment's own parameters by ``id`` (its coil and force gain,
+    :func:`_own_coil`), as its figures use them."""
     min_gain = MIN_EFFECT_GAIN if min_gain is None else min_gain
     weight = params.m_k * params.g
     corr = correction_basis(rig, records, n_x)
@@ -852,7 +852,7 @@ def correction_summary(rig: Rig, res: dict, params: PlantParams) -> dict:
 def damping_answer(s: dict) -> str:
     """What the velocity force of the mechanics is, from the correction's shapes alone (held-out
     cost change of the viscous and the friction parts, each with the static part) and its values
-    at the centre gap (the catalogue's damping ``k_FV`` included)."""
+    averaged over the records' gaps (the catalogue's damping ``k_FV`` included)."""
     g = s["held_out_gain_by_shape"]
     visc = s["k_FV"] + s["viscous_N_s_per_m"]
     fr, fr_sd = s["friction_N"], s["friction_sigma"]
@@ -1569,7 +1569,7 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                   f"−{100 * co['min_gain']:.0f} % to be used): {'used' if co['selected'] else 'not used'}.", "",
                   "| velocity shape fitted alone | held-out cost change |", "|---|---|"]
         lines += [f"| {k} | {-100 * v:+.1f} % |" for k, v in co["held_out_gain_by_shape"].items()]
-        lines += ["", f"At the centre gap (positive: opposing the motion): static {s['static_pct_weight']:+.2f} ± "
+        lines += ["", f"Averaged over the records' gaps (positive: opposing the motion): static {s['static_pct_weight']:+.2f} ± "
                   f"{s['static_sigma_pct_weight']:.2f} % of the weight, viscous {s['viscous_N_s_per_m']:+.3g} ± "
                   f"{s['viscous_sigma']:.2g} N·s/m, friction {1e3 * s['friction_N']:+.3g} ± {1e3 * s['friction_sigma']:.2g} mN "
                   f"({100 * s['friction_N'] / s['weight_N']:+.2f} % of the weight); the catalogue's damping in the model "
