@@ -100,7 +100,7 @@ def test_the_located_correction_recovers_a_planted_friction_and_viscous_force(pl
     # steps every 0.7 s: both gaps in the even and in the odd held-out blocks of 1 s
     recs = [_record(rig, np.zeros(4000), seed=s, params=truth, period=0.7) for s in (21, 22)]
     res = rigfit.correction_search(rig, recs, rig.params, {**NOISE, "q_force": 1e-3, "f_force": 20.0},
-                                   ridge=(1e-3, 1e-2))
+                                   ridge=(1e-2, 1e-1))
     s = res["summary"]
     assert res["basis"]["n_x"] == rigfit.CORRECTION_NX and len(res["coef"]) == 3 * rigfit.CORRECTION_NX
     if planted:

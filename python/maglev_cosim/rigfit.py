@@ -584,13 +584,13 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
 #: (eddy currents, air) and a friction (Coulomb, smoothed), each varying with the gap. It is part of
 #: the physics model (the filter and its predictions carry it like the random force) and is used
 #: only where the catalogue explains too little (:func:`correction_search`).
-CORRECTION_NX = 3
+CORRECTION_NX = 2
 #: The shapes of the velocity basis, in the order of each position term's three coefficients.
 CORRECTION_SHAPES = ("static", "viscous", "friction")
 #: Ridge weights tried for the correction's coefficients (on the coefficients in units of
 #: :data:`CORRECTION_SCALE` of the weight, relative to the prediction cost without a correction);
 #: the one with the lowest held-out cost is used.
-CORRECTION_RIDGE = (1e-3, 1e-2)
+CORRECTION_RIDGE = (1e-2, 1e-1)
 #: The coefficients' scale in the ridge penalty, as a fraction of the ball's weight.
 CORRECTION_SCALE = 0.02
 
