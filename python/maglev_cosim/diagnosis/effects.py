@@ -10,44 +10,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..plant.formulas import positions
+from .problem import Coord, Parameterization, Problem, fit, residuals
 from .residual import spectral_peaks
-
-if TYPE_CHECKING:
-    from .problem import Problem
-
-
-@dataclass(frozen=True)
-class Coord:
-    """One fit coordinate: name, scale (a typical size, so the solver sees order 1) and bounds."""
-
-    name: str
-    scale: float
-    lo: float
-    hi: float
-
-
-class Parameterization:
-    """A set of FMU parameters fitted in coordinates ``coords`` (the identity map by default)."""
-
-    params: tuple[str, ...] = ()
-    coords: tuple[Coord, ...] = ()
-
-    def to_params(self, z: Sequence[float]) -> dict[str, float]:
-        """Parameter values [SI units] from coordinates ``z``."""
-        return {c.name: float(v) for c, v in zip(self.coords, z)}
-
-    def to_coords(self, values: Mapping[str, float]) -> list[float]:
-        """Coordinates of parameter values."""
-        return [float(values[c.name]) for c in self.coords]
-
-    def uncertainty_scales(self) -> dict[str, float]:
-        """A step size per FMU parameter for Jacobians of the parameters themselves."""
-        return {c.name: c.scale for c in self.coords}
 
 
 class Baseline(Parameterization):
@@ -187,8 +155,6 @@ class PeriodicDisturbance(Effect):
         pickup is nearly linear in (a, b), so two replays with a 1 mV pickup in cosine and sine
         phase give a linear least-squares estimate, which a short nonlinear fit then polishes.
         (A trust-region fit started from the phase grid alone can stall at a = b = 0.)"""
-        from .problem import fit, residuals
-
         fixed = prob.with_base({**current, "f_d": z[2]})
         a0, b0 = (float(v) for v in self.to_coords({"A_d": current.get("A_d", 0.0),
                                                     "phi_d": current.get("phi_d", 0.0), "f_d": z[2]})[:2])
@@ -259,7 +225,6 @@ class ForceExponent(Effect):
 
     def start_values(self, z: Sequence[float], prob: Problem, current: Mapping[str, float]) -> dict[str, float]:
         vals = super().start_values(z, prob, current)
-        from ..formulas import positions
 
         x = positions({k: v for k, v in current.items() if k in prob.base}, prob.rec.y)
         vals["x_n"] = float(min(np.mean(x), current["x_0"] - 1e-4))

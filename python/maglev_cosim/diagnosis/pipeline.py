@@ -24,14 +24,15 @@ from multiprocessing import get_context
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ..record import Record
-from ..metrics import nrmse_fit
-from ..replay import HORIZON_S, baseline_params, estimate_noise
+from ..records.record import Record
 from .acceptance import BLOCK, CRITERION, accept
-from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, Parameterization, twin_warnings
-from .verdict import Verdict, conclude
-from .problem import Problem, cost_on, fit, residuals
+from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
+from .identify import equilibrium_points, least_squares_eq14
+from .metrics import nrmse_fit
+from .problem import Parameterization, Problem, cost_on, fit, residuals
+from .replay import HORIZON_S, baseline_params, estimate_noise
 from .residual import analyse_residual, effective_samples, noise_floor
+from .verdict import Verdict, conclude
 
 MAX_EFFECTS = 3
 
@@ -115,8 +116,6 @@ FREE_RUN_MIN_FIT = 90.0
 def static_start(rec: Record, base: dict[str, float], say: Say) -> dict[str, float]:
     """Starting values of k_c and x_0 from the paper's least-squares fit of Eq. 14 on the record's
     settled segments (Sec. 3.4.2), when it has them and they lie inside the calibration bounds."""
-    from ..identify import equilibrium_points, least_squares_eq14
-
     try:
         x, u_v = equilibrium_points(rec, base)
         lq = least_squares_eq14(x, u_v, base["m_k"], base["g"])

@@ -3,9 +3,9 @@
 Figures for the calibrated baseline ("before") and the final model ("after"):
 
 - the fit % of y and u (NRMSE, as MATLAB's ``compare``) of the free-run replay, and of the
-  k-step prediction (:func:`maglev_cosim.replay.predict`: an extended Kalman filter on the C
+  k-step prediction (:func:`maglev_cosim.diagnosis.replay.predict`: an extended Kalman filter on the C
   plant with the record's own disturbance levels, estimated for each model by maximum
-  likelihood of its innovations, :func:`~maglev_cosim.replay.estimate_noise`: a model that lacks
+  likelihood of its innovations, :func:`~maglev_cosim.diagnosis.replay.estimate_noise`: a model that lacks
   a dynamic effect explains the record with a larger, faster random force);
 - the *predictable share* of the filter's one-step innovations: the R² of a least-squares
   ARX fit of each innovation on the previous ``ARX_LAGS`` innovations and inputs. A model
@@ -40,11 +40,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from ..metrics import nrmse_fit
-from ..record import Record
-from ..replay import HORIZON_S, NoiseModel, estimate_noise, predict, replay_injected
+from ..records.record import Record
 from .effects import BASELINE, CATALOGUE
 from .locate import generic_corrections, locate
+from .metrics import nrmse_fit
+from .replay import HORIZON_S, NoiseModel, estimate_noise, predict, replay_injected
 
 #: Lags [samples] of the innovation ARX fit.
 ARX_LAGS = 10

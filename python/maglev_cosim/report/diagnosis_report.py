@@ -8,70 +8,22 @@ import hashlib
 import json
 import math
 import os
-import uuid
 import zipfile
 from datetime import datetime, timezone
-from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
-from .diagnosis import CATALOGUE, CRITERION, Diagnosis
-from .metrics import nrmse_fit, psd, resid
-from .params import set_label
-from .record import Record
-
-
-#: Namespace of the GUIDs issued to calibrated and rig FMUs (uuid5 of what makes the model).
-GUID_NAMESPACE = uuid.UUID("6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0002")
-
-
-def issued_guid(base_guid: str, parameters: Mapping[str, float], source_sha256: str | None = None) -> str:
-    """The GUID of a calibrated FMU: a uuid5 of the nominal FMU's GUID, the start values and the
-    hash of the source record, so the same calibration of the same record gets the same GUID."""
-    key = json.dumps({"base": base_guid, "parameters": {k: repr(float(v)) for k, v in sorted(parameters.items())},
-                      "record_sha256": source_sha256}, sort_keys=True)
-    return "{" + str(uuid.uuid5(GUID_NAMESPACE, key)) + "}"
-
-
-def calibrated_fmu(source: Path, out: Path, parameters: Mapping[str, float], *,
-                   resources: Mapping[str, bytes] | None = None, description: str | None = None,
-                   model_name: str | None = None, documentation: Mapping[str, bytes] | None = None,
-                   source_sha256: str | None = None) -> Path:
-    """A copy of the FMU ``source`` whose parameter start values are ``parameters``: a model of its
-    own, with a GUID of its own (:func:`issued_guid`, stated in ``resources/guid.txt`` too, the one
-    besides its built-in GUID the binary accepts), extra ``resources/`` and ``documentation/`` files
-    (FMI 2.0: ``documentation/index.html`` is the entry point) and, when given, another model name
-    and description. The ``modelIdentifier`` stays the binary's name."""
-    from lxml import etree
-
-    with zipfile.ZipFile(source) as zin:
-        root = etree.fromstring(zin.read("modelDescription.xml"))
-        lines = ["# start values of this FMU's parameters: the FMU reads them at fmi2Instantiate, so that it",
-                 "# uses the start values its modelDescription.xml states (written by maglev-cosim)"]
-        for sv in root.iter("ScalarVariable"):
-            name = sv.get("name")
-            if name in parameters and sv.get("causality") == "parameter":
-                real = sv.find("Real")
-                real.set("start", repr(float(parameters[name])))
-                lines.append(f"{name} {float(parameters[name])!r}")
-        guid = issued_guid(root.get("guid"), parameters, source_sha256)
-        root.set("guid", guid)
-        resources = {"start_values.txt": ("\n".join(lines) + "\n").encode(), "guid.txt": (guid + "\n").encode(),
-                     **(resources or {})}
-        if description:
-            root.set("description", description)
-        if model_name:
-            root.set("modelName", model_name)
-        xml = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
-        with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
-            for item in zin.infolist():
-                data = xml if item.filename == "modelDescription.xml" else zin.read(item.filename)
-                zout.writestr(item, data)
-            for folder, files in (("resources", resources), ("documentation", documentation or {})):
-                for name, data in files.items():
-                    zout.writestr(f"{folder}/{name}", data)
-    return out
+# Imported inside functions, on purpose: matplotlib (heavy, only the plots) and lxml (fmpy's dependency).
+from .._html import write_html
+from ..diagnosis import CATALOGUE, CRITERION, Diagnosis
+from ..diagnosis.locate import LOCATIONS, best_per_location
+from ..diagnosis.metrics import nrmse_fit, psd, resid
+from ..diagnosis.replay import baseline_params
+from ..plant.calibrated_fmu import calibrated_fmu, issued_guid
+from ..plant.fast import param_table
+from ..plant.params import set_label
+from ..records.record import Record
 
 
 def _sha256(path: str | Path) -> str | None:
@@ -92,8 +44,6 @@ def calibration_data(rec: Record, d: Diagnosis) -> dict:
     """``resources/calibration.json`` of a calibrated FMU: the source record and its hash, the date,
     the effects found, every parameter that differs from the C defaults with its ±1 standard error
     where the diagnosis estimated one, and the fit figures before and after."""
-    from .fast import param_table
-
     table = param_table()
     params = {}
     for name, value in d.parameters.items():
@@ -265,8 +215,6 @@ _SIGNAL_AXIS = {"u": ("controller output u [MU]", 1.0), "x": ("ball position x [
 def _location_plot(corrections, out: Path, plt, model: str = "") -> str:
     """The best generic correction at each location: the spline's curve over its signal, or the
     filter's frequency response; its held-out gain in the title."""
-    from .diagnosis.locate import LOCATIONS, best_per_location
-
     best = best_per_location(corrections)
     fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
     for a, loc in zip(ax, LOCATIONS):
@@ -329,8 +277,6 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     (out / "diagnosis.json").write_text(json.dumps(data, indent=2, default=float))
     written["json"] = out / "diagnosis.json"
     pngs = _plots(rec, d, out)
-
-    from .fast import param_table
 
     units = {n: row[3] for n, row in param_table().items()}
     lines = [f"# Diagnosis of `{rec.path}`", ""]
@@ -395,7 +341,6 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
         lines.append("")
     lines += ["### Calibrated baseline parameters", "", "| parameter | value | ± | Section 3 | unit |",
               "|---|---|---|---|---|"]
-    from .replay import baseline_params
 
     paper = baseline_params()
     for name in ("k_c", "x_0", "k_FV", "u_0"):
@@ -446,30 +391,3 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     if fmu_out is not None:
         written["fmu"] = write_calibrated_fmu(rec, d, fmu, fmu_out, out)
     return written
-
-
-def write_html(markdown_path: Path, html_path: Path) -> Path:
-    """A self-contained HTML page from a Markdown report: tables rendered, every PNG it links
-    embedded as a data URI, so that the one file can be mailed or archived."""
-    import base64
-    import re
-
-    import markdown
-
-    folder = markdown_path.parent
-    body = markdown.markdown(markdown_path.read_text(), extensions=["tables"])
-
-    def embed(m: re.Match) -> str:
-        png = folder / m.group(1)
-        if not png.is_file():
-            return m.group(0)
-        return f'src="data:image/png;base64,{base64.b64encode(png.read_bytes()).decode()}"'
-
-    body = re.sub(r'src="([^"]+\.png)"', embed, body)
-    title = markdown_path.read_text().splitlines()[0].lstrip("# ").strip() if markdown_path.stat().st_size else "report"
-    style = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em;line-height:1.45}"
-             "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:.25em .6em;"
-             "text-align:left}th{background:#eee}img{max-width:100%}code{background:#f4f4f4;padding:0 .2em}")
-    html_path.write_text(f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{title}</title>'
-                         f"<style>{style}</style></head><body>\n{body}\n</body></html>\n")
-    return html_path
