@@ -861,13 +861,16 @@ def damping_answer(s: dict) -> str:
             f"{s['viscous_N_s_per_m']:+.3g} ± {s['viscous_sigma']:.2g} from the correction) and a friction of "
             f"{1e3 * fr:+.3g} ± {1e3 * fr_sd:.2g} mN ({100 * fr / s['weight_N']:+.2f} % of the weight); held out, the "
             f"viscous shape alone changes the cost by {-100 * gv:+.1f} %, the friction shape alone by {-100 * gf:+.1f} %")
-    if fr > 3 * fr_sd and gf > gv + 0.02:
-        text += (": the large damping is mostly a friction (a force opposing the motion whose size barely grows with "
+    if fr > 3 * fr_sd and gf >= MIN_EFFECT_GAIN and gf > gv + 0.02:
+        text += (": the damping is mostly a friction (a force opposing the motion whose size barely grows with "
                  "the speed), not a force proportional to the velocity (eddy currents)")
-    elif visc > 0 and gv > gf + 0.02:
+    elif visc > 0 and gv >= MIN_EFFECT_GAIN and gv > gf + 0.02:
         text += ": the damping is mostly viscous (a force proportional to the velocity, as eddy currents give)"
+    elif max(gv, gf) >= MIN_EFFECT_GAIN:
+        text += ": the two shapes do about as well alone; the records do not tell them apart"
     else:
-        text += ": neither shape alone explains it; both act together"
+        text += (f": neither shape alone lowers the held-out cost by {100 * MIN_EFFECT_GAIN:.0f} %, so the records do "
+                 "not tell what the velocity force is")
     return text
 
 
