@@ -136,3 +136,17 @@ def test_the_correction_force_is_the_same_formula_in_python_and_c():
     c0 = real_rig.predict(rig, r, rig.params, 0.05, noise=NOISE)["y_pred"]
     ok = np.isfinite(a) & np.isfinite(b)
     assert np.sqrt(np.mean((a - b)[ok] ** 2)) < 0.05 * np.sqrt(np.mean((a - c0)[ok] ** 2))
+
+
+def test_the_damping_is_named_only_when_one_shape_alone_wins_held_out():
+    """real_rig.damping_answer: a friction when the friction shape alone lowers the held-out cost by
+    the effects' 10 % and more than the viscous one; nothing named when neither does."""
+    base = {"k_FV": 2.5, "viscous_N_s_per_m": -1.6, "viscous_sigma": 0.05, "friction_N": 0.013,
+            "friction_sigma": 0.0005, "weight_N": 0.594}
+    friction = real_rig.damping_answer({**base, "held_out_gain_by_shape": {"static+viscous": 0.0, "static+friction": 0.23}})
+    assert "mostly a friction" in friction
+    viscous = real_rig.damping_answer({**base, "friction_N": 0.0, "held_out_gain_by_shape":
+                                       {"static+viscous": 0.3, "static+friction": 0.05}})
+    assert "mostly viscous" in viscous
+    none = real_rig.damping_answer({**base, "held_out_gain_by_shape": {"static+viscous": -0.7, "static+friction": 0.04}})
+    assert "do not tell" in none and "mostly" not in none
