@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     text = section(res, command, wall)
     print(text)
     if not a.no_write:
-        benchdoc.replace_section(SECTION, text)
+        benchdoc.replace_section(text)
         print(f"wrote the section of {ROOT / 'docs' / 'benchmarks.md'}")
     return 0
 
