@@ -313,6 +313,35 @@ static int copy_plant(MaglevPlant *dst, const MaglevPlant *src, char *msg, size_
 /* One sample of the model, in place, with input u and disturbance force d held over it: the
  * plant step, then d's effect on the ball (exact for a force held constant: it adds linearly to
  * the mechanics, whatever the plant does). */
+double maglev_correction_force(const MaglevCorrection *c, double x, double v) {
+    if (!c || c->n_x <= 0) return 0.0;
+    double xi = (x - c->x_c) / c->x_s;
+    xi = xi < -1.5 ? -1.5 : (xi > 1.5 ? 1.5 : xi);
+    const double b[3] = {1.0, v / c->v_s, tanh(v / c->v_c)};
+    double p0 = 1.0, p1 = xi, f = 0.0;
+    for (int j = 0; j < c->n_x; j++) {
+        double pj = j == 0 ? 1.0 : (j == 1 ? xi : ((2.0 * j - 1.0) * xi * p1 - (j - 1.0) * p0) / j);
+        if (j >= 2) {
+            p0 = p1;
+            p1 = pj;
+        }
+        f += pj * (c->coef[3 * j] * b[0] + c->coef[3 * j + 1] * b[1] + c->coef[3 * j + 2] * b[2]);
+    }
+    return f;
+}
+
+static int correction_check(const MaglevCorrection *c, char *msg, size_t len) {
+    if (!c || c->n_x == 0) return 0;
+    int ok = c->n_x > 0 && c->n_x <= 4 && isfinite(c->x_c) && c->x_s > 0 && isfinite(c->x_s) && c->v_s > 0 &&
+             isfinite(c->v_s) && c->v_c > 0 && isfinite(c->v_c);
+    for (int k = 0; ok && k < 3 * c->n_x; k++) ok = isfinite(c->coef[k]);
+    if (!ok) {
+        snprintf(msg, len, "invalid correction (n_x 0 to 4, x_s, v_s, v_c > 0, finite coefficients)");
+        return -1;
+    }
+    return 0;
+}
+
 static int advance(MaglevPlant *m, double u, double d, double ts, char *msg, size_t len) {
     if (maglev_set_input(m, u, &maglev_std_allocator, msg, len) || maglev_step(m, ts, &maglev_std_allocator, msg, len))
         return -1;
@@ -418,12 +447,14 @@ static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
 
 /* The filter of both entry points: with a PID (closed-loop predictions) or without (pid NULL: the
  * predictions are driven by the measured input), and with an optional measured current. */
-static int predict(const double *params, const MaglevController *ctl, double ts, const MaglevFilter *f, const double *w,
+static int predict(const double *params, const MaglevController *ctl, const MaglevCorrection *corr, double ts,
+                   const MaglevFilter *f, const double *w,
                    const double *y, const double *u, const double *i_meas, double r_current, size_t n,
                    double u_hold, double *y_pred, double *u_pred, double *i_pred, double *innov,
                    double *innov_var, double *d_est, double *d_sd, char *msg, size_t len) {
     MaglevPlant m;
-    if ((ctl && ctl_check(ctl, u_hold, msg, len)) || filter_check(f, msg, len)) return -1;
+    if ((ctl && ctl_check(ctl, u_hold, msg, len)) || filter_check(f, msg, len) || correction_check(corr, msg, len))
+        return -1;
     if (!ctl && (!(ts > 0) || !isfinite(ts) || !isfinite(u_hold))) {
         snprintf(msg, len, "sample time %g s must be > 0 and the initial input finite", ts);
         return -1;
@@ -514,7 +545,7 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
                     double imax = maglev_param(&cur, VR_i_max), ic = i_meas[k + (size_t)j - 1];
                     cur.i = ic < 0 ? 0 : (ic > imax ? imax : ic);
                 }
-                if (advance(&cur, uin, dd, ts, msg, len)) {
+                if (advance(&cur, uin, dd + maglev_correction_force(corr, cur.x, cur.v), ts, msg, len)) {
                     rc = -1;
                     break;
                 }
@@ -540,7 +571,7 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
             rc = -1;
             break;
         }
-        if (advance(&nom, u[k], d, ts, msg, len)) {
+        if (advance(&nom, u[k], d + maglev_correction_force(corr, m.x, m.v), ts, msg, len)) {
             maglev_release(&nom, &maglev_std_allocator);
             rc = -1;
             break;
@@ -563,7 +594,7 @@ static int predict(const double *params, const MaglevController *ctl, double ts,
                 break;
             }
             put_state(&pert, sp);
-            if (advance(&pert, u[k], d, ts, msg, len)) {
+            if (advance(&pert, u[k], d + maglev_correction_force(corr, pert.x, pert.v), ts, msg, len)) {
                 maglev_release(&pert, &maglev_std_allocator);
                 rc = -1;
                 break;
@@ -601,7 +632,7 @@ int maglev_replay_predict(const double *params, const MaglevController *c, const
         snprintf(msg, len, "no controller given (maglev_replay_predict_measured replays without one)");
         return -1;
     }
-    return predict(params, c, c->pid.ts, f, w, y, u, NULL, 0.0, n, u_hold, y_pred, u_pred, NULL, innov, innov_var,
+    return predict(params, c, NULL, c->pid.ts, f, w, y, u, NULL, 0.0, n, u_hold, y_pred, u_pred, NULL, innov, innov_var,
                    NULL, NULL, msg, len);
 }
 
@@ -609,6 +640,14 @@ int maglev_replay_predict_measured(const double *params, const MaglevFilter *f, 
                                    const double *u, const double *i_meas, double r_current, size_t n,
                                    double *y_pred, double *i_pred, double *innov, double *innov_var, double *d_est,
                                    double *d_sd, char *msg, size_t len) {
-    return predict(params, NULL, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, y_pred, NULL, i_pred,
+    return predict(params, NULL, NULL, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, y_pred, NULL, i_pred,
+                   innov, innov_var, d_est, d_sd, msg, len);
+}
+
+int maglev_replay_predict_corrected(const double *params, const MaglevFilter *f, const MaglevCorrection *corr,
+                                    double ts, const double *y, const double *u, const double *i_meas,
+                                    double r_current, size_t n, double *y_pred, double *i_pred, double *innov,
+                                    double *innov_var, double *d_est, double *d_sd, char *msg, size_t len) {
+    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, y_pred, NULL, i_pred,
                    innov, innov_var, d_est, d_sd, msg, len);
 }

@@ -97,6 +97,24 @@ typedef struct {
                         * regression on the measured current would use it), 0 by the actuator signal */
 } MaglevFilter;
 
+/* A located correction at the mechanics: a force on the ball [N] (positive: along x, upward in
+ * the paper's convention) that is a function of the ball's position and velocity, added over each
+ * sample of the filter's and the predictions' model like the random force d (held over the sample,
+ * from the state at its start: the location's injected force dF, made a function of the state):
+ *   F = sum over j < n_x, l < 3 of coef[3*j + l] * P_j(xi) * b_l(v),
+ *   xi = (x - x_c)/x_s (held within [-1.5, 1.5]), P_j the Legendre polynomials (1, xi, (3 xi^2 - 1)/2, ...),
+ *   b_0 = 1 (a static force), b_1 = v/v_s (viscous), b_2 = tanh(v/v_c) (a friction: Coulomb smoothed over v_c).
+ * Linear in coef, so a fit of it is a regression through the prediction errors. n_x = 0: none. */
+typedef struct {
+    int n_x;          /* position terms, 0 (off) to 4 */
+    double x_c, x_s;  /* [m] centre and half width of the positions the basis spans (x_s > 0) */
+    double v_s, v_c;  /* [m/s] velocity scale of the viscous term, smoothing speed of the friction (> 0) */
+    double coef[12];  /* [N] */
+} MaglevCorrection;
+
+/* The correction's force [N] at position x [m] and velocity v [m/s] (0 for NULL or n_x = 0). */
+double maglev_correction_force(const MaglevCorrection *c, double x, double v);
+
 /* y_pred[k], u_pred[k]: the predictions of y[k] and u[k] made at k - horizon (NaN where none was
  * made); innov[k] = y[k] - (its one-step prediction), innov_var[k] its variance [MU^2] (NaN
  * where the reading sat at the converter's limit and was not used). Any output may be NULL.
@@ -118,6 +136,13 @@ int maglev_replay_predict_measured(const double *params, const MaglevFilter *fil
                                    const double *u, const double *i_meas, double r_current, size_t n,
                                    double *y_pred, double *i_pred, double *innov, double *innov_var, double *d_est,
                                    double *d_sd, char *msg, size_t msglen);
+
+/* maglev_replay_predict_measured with a located correction at the mechanics (corr, may be NULL:
+ * none) in the filter's model and its predictions. */
+int maglev_replay_predict_corrected(const double *params, const MaglevFilter *filter, const MaglevCorrection *corr,
+                                    double ts, const double *y, const double *u, const double *i_meas,
+                                    double r_current, size_t n, double *y_pred, double *i_pred, double *innov,
+                                    double *innov_var, double *d_est, double *d_sd, char *msg, size_t msglen);
 
 /* The plant driven by a given input sequence; y[k] is read at t_k before u_in[k] is applied;
  * u_in[0] is also the input before t = 0. */

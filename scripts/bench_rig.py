@@ -74,6 +74,16 @@ def section(res: dict, command: str, wall_s: float) -> str:
                      "evaluations.")
     ef = res.get("effects") or {}
     lines.append(f"Effects selected: {', '.join(ef.get('selected', [])) or 'none'}.")
+    co = res.get("correction")
+    if co:
+        s = co["summary"]
+        lines.append(f"Located correction at the mechanics ({co['basis']['n_x']} gap terms x static, viscous, friction; "
+                     f"ridge {co['ridge']:g}): held-out cost change {-100 * co['held_out_gain']:+.1f} %, "
+                     f"{'used' if co['selected'] else 'not used'}; by shape alone: "
+                     + ", ".join(f"{k} {-100 * v:+.1f} %" for k, v in co["held_out_gain_by_shape"].items())
+                     + f"; averaged over the gaps: static {s['static_pct_weight']:+.2f} ± {s['static_sigma_pct_weight']:.2f} % "
+                     f"of the weight, viscous {s['viscous_N_s_per_m']:+.3g} ± {s['viscous_sigma']:.2g} N·s/m, friction "
+                     f"{1e3 * s['friction_N']:+.3g} ± {1e3 * s['friction_sigma']:.2g} mN ({co['evaluations']} evaluations).")
     lines += ["", "Reasons the tool gives:", ""] + [f"- {r}" for r in res["reasons"]] + [""]
     return "\n".join(lines)
 
@@ -98,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     text = section(res, command, wall)
     print(text)
     if not a.no_write:
-        benchdoc.replace_section(SECTION, text)
+        benchdoc.replace_section(text)
         print(f"wrote the section of {ROOT / 'docs' / 'benchmarks.md'}")
     return 0
 

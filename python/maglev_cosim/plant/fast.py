@@ -138,7 +138,7 @@ def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float,
 def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.ndarray, u: np.ndarray, *, ts: float,
                      q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,
-                     current_input: bool = False) -> dict[str, np.ndarray]:
+                     current_input: bool = False, correction: Mapping | None = None) -> dict[str, np.ndarray]:
     """The prediction-error replay of a record whose controller is unknown, in one C call
     (``maglev_replay_predict_measured``): the filter follows the measured reading ``y`` [MU] (and
     the measured coil ``current`` [A], white noise of RMS ``r_current``, when given) and predicts
@@ -146,7 +146,10 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     the measured ``current`` over the horizon (the actuator signal then only moves it within each
     sample). Returns ``y_pred`` [MU],
     ``i_pred`` [A] (NaN where no prediction ends), ``innov`` [MU], ``innov_var`` [MU²], and ``d``, ``d_sd``
-    [N]: the filtered random force on the ball and its standard deviation at every sample."""
+    [N]: the filtered random force on the ball and its standard deviation at every sample.
+    ``correction``: a located correction at the mechanics (``MaglevCorrection``: ``n_x``, ``x_c``,
+    ``x_s``, ``v_s``, ``v_c``, ``coef``), a force that is a function of position and velocity, in the
+    filter's model and its predictions (``maglev_replay_predict_corrected``)."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
     arrays = [np.ascontiguousarray(a, dtype=float) for a in (y, u)]
@@ -158,10 +161,17 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    rc = m.lib.maglev_replay_predict_measured(ptr(pv), filt, float(ts), *(ptr(a) for a in arrays),
-                                              m.ffi.NULL if cur is None else ptr(cur), float(r_current), n,
-                                              *(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var", "d",
-                                                                       "d_sd")), msg, 256)
+    if correction is not None and int(correction["n_x"]) > 0:
+        coef = [float(v) for v in correction["coef"]]
+        corr = m.ffi.new("MaglevCorrection *", {"n_x": int(correction["n_x"]), "x_c": float(correction["x_c"]),
+                                                 "x_s": float(correction["x_s"]), "v_s": float(correction["v_s"]),
+                                                 "v_c": float(correction["v_c"]), "coef": coef + [0.0] * (12 - len(coef))})
+        call = lambda *args: m.lib.maglev_replay_predict_corrected(args[0], args[1], corr, *args[2:])  # noqa: E731
+    else:
+        call = m.lib.maglev_replay_predict_measured
+    rc = call(ptr(pv), filt, float(ts), *(ptr(a) for a in arrays),
+              m.ffi.NULL if cur is None else ptr(cur), float(r_current), n,
+              *(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")), msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return out
