@@ -595,6 +595,8 @@ CORRECTION_SHAPES = ("static", "viscous", "friction")
 CORRECTION_RIDGE = (1e-2, 1e-1)
 #: The coefficients' scale in the ridge penalty, as a fraction of the ball's weight.
 CORRECTION_SCALE = 0.02
+#: The forward-difference step of the correction's Jacobian, in units of that scale (1 ‰ of the weight).
+CORRECTION_STEP = 0.05
 
 
 def correction_basis(rig: Rig, records: Sequence[RigRecord], n_x: int = CORRECTION_NX) -> dict:
@@ -671,15 +673,16 @@ def _with_coef(noise: dict, corr: dict, coef: np.ndarray) -> dict:
 
 def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, noise: dict, say=lambda s: None, *,
                       n_x: int = CORRECTION_NX, stride: int = 20, ridge: Sequence[float] = CORRECTION_RIDGE,
-                      min_gain: float | None = None, max_nfev: int = 5, own: dict | None = None) -> dict:
+                      min_gain: float | None = None, max_nfev: int = 3, own: dict | None = None) -> dict:
     """The located correction at the mechanics, fitted by the prediction cost of the calibration
     (the gap 20 and 50 ms ahead, :func:`_errors`) and selected like an effect: its coefficients are
-    fitted on the predictions that end in the even blocks (trust-region least squares through the
-    filter and the unstable plant, ``max_nfev`` steps, a ridge penalty on the coefficients), for each
-    ridge weight of ``ridge``, and judged on the odd ones. The ridge weight with the lowest held-out
+    fitted on the predictions that end in the even blocks (a ridge regression on the errors' Jacobian
+    through the filter and the unstable plant, taken once at zero: the correction is a force linear
+    in its coefficients), for each ridge weight of ``ridge``, and judged on the odd ones by replays. The ridge weight with the lowest held-out
     cost is kept; the correction is selected when its held-out cost change reaches ``min_gain``
     (default :data:`MIN_EFFECT_GAIN`), and refitted on every block (also when not selected: its
-    shape is reported either way). Each velocity shape alone (static + viscous, static + friction,
+    shape is reported either way) by Gauss-Newton steps, at most ``max_nfev``, each with its own
+    Jacobian. Each velocity shape alone (static + viscous, static + friction,
     the same at every gap) is fitted and judged the same way, to tell which one carries the
     correction. JSON-ready: ``basis``, ``coef`` and ``sigma`` [N] (±1σ from the Jacobian, a lower
     bound: overlapping horizons' errors are correlated), ``ridge``, ``held_out`` (cost per ridge
@@ -698,22 +701,29 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
         evals[0] += 1
         return _errors(rig, records, params, _with_coef(noise, corr, coef), stride=stride, own=own)
 
-    def fit(rows: np.ndarray, cols: Sequence[int], lam: float, z0: np.ndarray, nfev: int):
-        """Coefficients (in units of the scale) that minimise the errors on ``rows`` plus the ridge
-        penalty, only ``cols`` free, from ``z0``: trust-region least squares through the filter and
-        the unstable plant (its Jacobian by finite differences)."""
-        cols = list(cols)
-        pen = np.sqrt(lam)
-
-        def resid(zc: np.ndarray) -> np.ndarray:
+    def jacobian(z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The errors at ``z0`` and their Jacobian by forward differences (``npar`` + 1 replays):
+        the correction is a force linear in its coefficients, so the errors are nearly linear in
+        them and one Jacobian serves every fit below."""
+        e0 = errors(z0 * unit)[0]
+        J = np.empty((len(e0), npar))
+        for k in range(npar):
             z = z0.copy()
-            z[cols] = zc
-            return np.concatenate([errors(z * unit)[0][rows], pen * zc])
+            z[k] += CORRECTION_STEP
+            J[:, k] = (errors(z * unit)[0] - e0) / CORRECTION_STEP
+        return e0, J
 
-        sol = least_squares(resid, z0[cols], method="trf", diff_step=0.05, max_nfev=nfev, x_scale=1.0)
-        z = z0.copy()
-        z[cols] = sol.x
-        return z, sol
+    def fit(lin: tuple[np.ndarray, np.ndarray, np.ndarray], rows: np.ndarray, cols: Sequence[int], lam: float
+            ) -> np.ndarray:
+        """Coefficients (in units of the scale) that minimise the errors on ``rows`` plus the ridge
+        penalty ``lam·|z|²``, only ``cols`` free: the Gauss-Newton step of the linearisation
+        ``lin = (e0, J, z0)`` (errors ``e0 + J·(z − z0)``), a ridge regression."""
+        e0, J, z0 = lin
+        cols = list(cols)
+        A, b = J[np.ix_(rows, cols)], e0[rows] - J[rows] @ z0
+        z = np.zeros(npar)
+        z[cols] = np.linalg.solve(A.T @ A + lam * np.eye(len(cols)), -A.T @ b)
+        return z
 
     say(f"located correction at the mechanics: fitting {npar} coefficients ({n_x} position terms x static, "
         "viscous, friction) on the held-out blocks")
@@ -721,6 +731,8 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
     cost0 = {p: float(np.sum(e0[par == p] ** 2)) for p in (0, 1)}
     even = par == 0
     everything = list(range(npar))
+    e0, J0 = jacobian(np.zeros(npar))
+    lin0 = (e0, J0, np.zeros(npar))
 
     def held(z: np.ndarray) -> float:
         e, p = errors(z * unit)
@@ -728,7 +740,7 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
 
     per_ridge = {}
     for lam in ridge:
-        z, _ = fit(even, everything, lam * cost0[0], np.zeros(npar), max_nfev)
+        z = fit(lin0, even, everything, lam * cost0[0])
         per_ridge[lam] = (held(z), z)
     lam = min(per_ridge, key=lambda k: per_ridge[k][0])
     best_cost, z_even = per_ridge[lam]
@@ -737,7 +749,7 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
     shapes = {"static+viscous": (0, 1), "static+friction": (0, 2)}
     by_shape = {"all": best_cost}
     for name, cols in shapes.items():
-        by_shape[name] = held(fit(even, cols, lam * cost0[0], np.zeros(npar), max_nfev)[0])
+        by_shape[name] = held(fit(lin0, even, cols, lam * cost0[0]))
     gain = 1.0 - best_cost / cost0[1] if cost0[1] > 0 else 0.0
     out: dict = {"basis": {k: corr[k] for k in ("n_x", "x_c", "x_s", "v_s", "v_c", "p_mean")}, "shapes": list(CORRECTION_SHAPES),
                  "ridge": float(lam), "held_out_cost_without": cost0[1],
@@ -750,10 +762,16 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
     # reported either way)
     allrows = np.ones(len(e0), bool)
     cost_all = float(np.sum(e0 ** 2))
-    z, sol = fit(allrows, everything, lam * cost_all, z_even, max_nfev)
-    e, _ = errors(z * unit)
+    lin = lin0
+    for _ in range(max_nfev):     # Gauss-Newton on every block, the Jacobian taken again at each step
+        z = fit(lin, allrows, everything, lam * cost_all)
+        e_z, J_z = jacobian(z)
+        step = np.max(np.abs(z - lin[2]))
+        lin = (e_z, J_z, z)
+        if step < 0.05 * max(float(np.max(np.abs(z))), 1.0):
+            break
+    e, Jz = lin[0], lin[1]
     dof = max(len(e) - npar, 1)
-    Jz = sol.jac[: len(e)]
     A = Jz.T @ Jz
     Hinv = np.linalg.pinv(A + lam * cost_all * np.eye(npar))
     cov = Hinv @ A @ Hinv * (float(e @ e) / dof)
