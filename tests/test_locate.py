@@ -21,7 +21,7 @@ def _located(tmp_path, effects):
     mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
     cs = generic_corrections(rec, baseline_params(), mask, scale_y=nf["sigma_y"],
                              scale_u=nf["rms_u_from_sensor_noise"])
-    assert {c.location for c in cs} == set(LOCATIONS) and len(cs) == 6
+    assert {c.location for c in cs} == set(LOCATIONS) and len(cs) == 8
     return locate(cs), cs
 
 

@@ -259,7 +259,8 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
 
 
 _SIGNAL_AXIS = {"u": ("controller output u [MU]", 1.0), "x": ("ball position x [mm]", 1e3),
-                "y": ("reading y [MU]", 1.0), "F": ("force F [N]", 1.0), "i": ("current i [A]", 1.0)}
+                "y": ("reading y [MU]", 1.0), "F": ("force F [N]", 1.0), "i": ("current i [A]", 1.0),
+                "v": ("ball velocity v [mm/s]", 1e3)}
 
 
 def _location_plot(corrections, out: Path, plt, model: str = "") -> str:
@@ -268,7 +269,20 @@ def _location_plot(corrections, out: Path, plt, model: str = "") -> str:
     from .diagnosis.locate import LOCATIONS, best_per_location
 
     best = best_per_location(corrections)
-    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
+    # the mechanics' force of gap and velocity, drawn against the velocity: a friction shows as a
+    # step at v = 0 (issue 22, item 3), whichever correction is the mechanics' best
+    motion = next((c for c in corrections if c.location == "mechanics" and c.form == "state"), None)
+    fig, ax = plt.subplots(1, 4 if motion else 3, figsize=(17 if motion else 13, 3.8))
+    if motion:
+        sh, a = motion.shape, ax[3]
+        a.plot(np.asarray(sh["x"]) * 1e3, np.asarray(sh["correction"]) * 1e3, color="tab:red")
+        a.axvline(0.0, color="0.6", lw=0.8)
+        a.set_xlabel(_SIGNAL_AXIS["v"][0])
+        a.set_ylabel("force on the ball at the mean gap [mN]")
+        a.set_title(f"mechanics: force of gap and velocity, removes {100 * motion.held_out_gain:.1f} %\n"
+                    f"friction-like step F_c = {sh['coulomb_force_N'] * 1e3:.3g} mN, damping "
+                    f"{sh['damping_N_s_per_m']:.3g} N.s/m", fontsize=9)
+        a.grid(alpha=0.3)
     for a, loc in zip(ax, LOCATIONS):
         c = best.get(loc)
         if c is None:

@@ -44,7 +44,7 @@ from ..metrics import nrmse_fit
 from ..record import Record
 from ..replay import HORIZON_S, NoiseModel, estimate_noise, predict, replay_injected
 from .effects import BASELINE, CATALOGUE
-from .locate import generic_corrections, locate
+from .locate import best_per_location, generic_corrections, locate
 
 #: Lags [samples] of the innovation ARX fit.
 ARX_LAGS = 10
@@ -60,6 +60,20 @@ OWN_SHARE_DRAWS = 3
 MIN_PREDICTION_FIT = 80.0
 #: Relative distance to a bound that counts as "on the bound".
 ON_BOUND = 1e-3
+
+def generic_evidence(corrections: Sequence) -> dict[str, dict]:
+    """Per location, the figures of its best generic correction (:mod:`.locate`) and, at the
+    mechanics, of its force of gap and velocity whatever its rank (the friction-like step, the
+    damping): numbers for ``location_evidence``, the curves stay in the figure."""
+    out: dict[str, dict] = {}
+    for loc, c in best_per_location(list(corrections)).items():
+        out[loc] = {"form": c.form, "signal": c.signal, "held_out_gain": c.held_out_gain, "fit_gain": c.fit_gain}
+    for c in corrections:
+        if c.form == "state":
+            figs = {k: v for k, v in c.shape.items() if isinstance(v, (int, float)) or k == "coefficients_si"}
+            out.setdefault(c.location, {})[f"{c.form} ({c.signal})"] = {"held_out_gain": c.held_out_gain, **figs}
+    return out
+
 
 def location_of(effect: str) -> str:
     """``actuator``, ``mechanics`` or ``sensor``: where the effect acts on the loop."""
@@ -287,6 +301,8 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
                                                             location != "undetermined" else ""))
     else:
         verdict = "explained" if selected else "no effect"
+    for loc, fig in generic_evidence(corrections).items():
+        evidence.setdefault(loc, {})["generic_correction"] = fig
     return Verdict(verdict, after.to_json(), before.to_json(), warnings, noise, noise_before,
                    {"before": before.predictable_share, "after": share, "after_own_records": share_own}, evidence,
                    before, after, corrections)
