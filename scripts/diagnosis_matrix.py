@@ -96,6 +96,10 @@ def _describe(dist: dict) -> str:
             f"pid={dist.get('kp', 2):.2f}/{dist.get('ki', 2.97):.2f}/{dist.get('kd', 0.01):.4f}")
 
 
+#: The effects the benchmark's diagnoses try (None: the default catalogue; ``--also`` adds to it).
+FAMILY_EFFECTS: list[str] | None = None
+
+
 def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
     """The acceptance benchmark: false positives on no-effect records, power on catalogue effects."""
     out: dict = {"null": [], "power": []}
@@ -107,7 +111,7 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
         dist = draw_disturbance(seed)
         rec = read_record(SYNTH(tmp / f"n{k}.csv", seed=seed, disturbance=dist), plausibility="warn")
         t0 = time.perf_counter()
-        d = diagnose(rec)
+        d = diagnose(rec, effects=FAMILY_EFFECTS)
         dt = time.perf_counter() - t0
         after_null[seed] = {"free_run": d.after["rms_u"], "prediction": d.verdict.after.prediction_rms["u"]}
         print(f"{seed:>6}  {_describe(dist):<62}{','.join(d.selected) or '-':<28}"
@@ -127,7 +131,7 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path) -> dict:
             rec = read_record(SYNTH(tmp / f"p{k}.csv", seed=seed, disturbance=dist, effects=planted),
                               plausibility="warn")
             t0 = time.perf_counter()
-            d = diagnose(rec)
+            d = diagnose(rec, effects=FAMILY_EFFECTS)
             dt = time.perf_counter() - t0
             null = after_null.get(seed)
             ratio = d.after["rms_u"] / null["free_run"] if null else float("nan")
@@ -166,8 +170,13 @@ def main() -> None:
                          "(the matrix then skips the rows with effects it does not have)")
     ap.add_argument("--setting", action="append", default=[], metavar="NAME=VALUE",
                     help="with --emulator ivp: one of its settings (pid_offset, f_y, v_c, method, rtol), repeatable")
+    ap.add_argument("--also", action="append", default=[], metavar="EFFECT",
+                    help="with --family: an opt-in catalogue effect tried beside the default ones, to measure "
+                         "what putting it in the default catalogue would do (repeatable)")
     a = ap.parse_args()
-    global SYNTH
+    global SYNTH, FAMILY_EFFECTS
+    if a.also:
+        FAMILY_EFFECTS = [*DEFAULT_EFFECTS, *(e for e in a.also if e not in DEFAULT_EFFECTS)]
     supported = None
     if a.setting and a.emulator != "ivp":
         ap.error("--setting belongs to --emulator ivp")

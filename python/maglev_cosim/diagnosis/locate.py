@@ -55,8 +55,11 @@ V_SIGN = 1e-3
 #: The mechanics' force of the gap and the velocity, as a sum of these terms (each over its RMS on
 #: the record): what it is, as a function of x - mean(x) and v.
 MECHANICS_TERMS = ("v", "tanh(v/v_s)", "x", "x*v")
-#: The actuator's current correction of the input, the current and its rate.
-ACTUATOR_TERMS = ("u", "u^2", "i", "i^2", "di/dt", "i*di/dt")
+#: The actuator's current correction of the current and its rate. The input enters through the
+#: current: in the model the current is the input through the amplifier's law (affine where it does
+#: not clip), so that terms in u beside terms in i are collinear, and such a fit extrapolates
+#: wildly to the held-out blocks (held-out gains of -30 % to -270 % measured with u, u^2 added).
+ACTUATOR_TERMS = ("i", "i^2", "di/dt", "i*di/dt")
 
 
 @dataclass
@@ -153,9 +156,9 @@ def _state_shape(where: str, theta: np.ndarray, rms: np.ndarray, sig: Mapping[st
                 "damping_N_s_per_m": -coef["v"]}
     i = sig["i"]
     grid = np.linspace(np.quantile(i, 0.01), np.quantile(i, 0.99), 60)
-    curve = coef["i"] * grid + coef["i^2"] * (grid ** 2 - np.mean(i ** 2))
+    curve = coef.get("i", 0.0) * grid + coef.get("i^2", 0.0) * (grid ** 2 - np.mean(i ** 2))
     return {"kind": "curve", "signal": "i", "x": (grid + sig["i_mean"]).tolist(), "correction": curve.tolist(),
-            "terms": list(names), "coefficients_si": coef, "rate_A_per_A_s": coef["di/dt"]}
+            "terms": list(names), "coefficients_si": coef, "rate_A_per_A_s": coef.get("di/dt", 0.0)}
 
 
 def _ridge(A: np.ndarray, b: np.ndarray, smooth: bool) -> np.ndarray:
@@ -206,7 +209,7 @@ def generic_corrections(rec: Record, params: Mapping[str, float], fit_mask: np.n
     sig = {**_centred(base, ts), "i_mean": float(np.mean(base["i"]))}
     signals = {
         "actuator": [("static", "u", base["u"], "MU", 1e-3), ("filter", "i", base["i"], "A", 1e-3 * amp),
-                     ("state", "u, i, di/dt", base["i"], "A", 1e-3 * amp)],
+                     ("state", "i, di/dt", base["i"], "A", 1e-3 * amp)],
         "mechanics": [("static", "x", base["x"], "N", 1e-3 * mg), ("filter", "F", force, "N", 1e-3 * mg),
                       ("state", "x, v", base["v"], "N", 1e-3 * mg)],
         "sensor": [("static", "x", base["x"], "MU", 1e-3), ("filter", "y", base["y"], "MU", 1e-3)],
