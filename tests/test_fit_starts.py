@@ -66,3 +66,26 @@ def test_a_brief_current_limit_of_the_independent_emulator_is_found(tmp_path):
                                                                    for c in d.candidates])
     assert d.parameters["i_max"] == pytest.approx(0.72, rel=0.05)
     assert d.to_json()["verdict"] != "calibration failed", d.warnings
+
+
+def test_a_model_on_a_bound_is_retried_with_the_candidates_present(tmp_path):
+    """A model whose D/A offset absorbed a brief current limit and ran onto its bound (u_0 = 1 V,
+    as the issue's final model): refitted from the calibration's start with each candidate present,
+    the limit joins (i_max within 5 %) and the offset leaves the bound."""
+    from maglev_cosim.diagnosis.pipeline import BLOCK, Search, calibrate, retry_on_bounds
+    from maglev_cosim.diagnosis.verdict import on_bounds
+
+    rec = read_record(synth_ivp(tmp_path / "l.csv", duration=4.0, seed=7, reference="square", period=0.3,
+                                effects={"current_saturation": {"i_max": 0.72}}, settings={"pid_offset": 0.0}),
+                      plausibility="warn")
+    fit_mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    base = baseline_params()
+    cal = calibrate(rec, base, fit_mask, lambda s: None)
+    stuck = {**base, **cal.values, "u_0": 1.0}
+    assert on_bounds(stuck)[0]
+    lines: list[str] = []
+    again = retry_on_bounds(cal.prob, Search([], stuck, [], []), ["current_saturation", "delay"], ~fit_mask,
+                            lines.append)
+    assert again is not None and again.selected == ["current_saturation"], lines
+    assert not on_bounds(again.values)[0]
+    assert again.values["i_max"] == pytest.approx(0.72, rel=0.05)
