@@ -474,7 +474,7 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
         The closed-loop record.
     effects : sequence of str, optional
         The catalogue entries to consider (default: :data:`~.effects.DEFAULT_EFFECTS`, the
-        catalogue but for the opt-in ``coulomb_friction`` and ``sensor_lag``).
+        catalogue but for the opt-in ``sensor_lag`` and ``amplifier_dead_zone``).
     workers : int, optional
         Processes for the candidate fits (default: 2, or 1 on a one-core machine).
     progress : callable, optional
@@ -508,7 +508,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
               start: Mapping[str, float] | None) -> Diagnosis:
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
-    effects = list(DEFAULT_EFFECTS) if effects is None else list(effects)
+    effects = list(DEFAULT_EFFECTS) if effects is None else list(dict.fromkeys(effects))   # each tried once
     for e in effects:
         if e not in CATALOGUE:
             raise ValueError(f"unknown effect {e!r}: choose from {', '.join(CATALOGUE)}")
