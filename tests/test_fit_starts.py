@@ -5,6 +5,7 @@ emulator is found."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,6 +16,19 @@ from maglev_cosim.diagnosis.problem import Problem
 from maglev_cosim.emulator_ivp import synth_record as synth_ivp
 from maglev_cosim.record import read_record
 from maglev_cosim.replay import baseline_params
+
+
+@pytest.fixture(scope="module")
+def limited(tmp_path_factory):
+    """Issue 22's case on the independent emulator: a current limit under the square reference of
+    0.06 MU that bites in about 2 % of the samples (0.72 A, period 0.3 s; the issue's other
+    simulator had 0.8 A at 1.6 %); a short record, without the emulator's computation delay."""
+    out = tmp_path_factory.mktemp("limited") / "l.csv"
+    path = synth_ivp(out, duration=4.0, seed=7, reference="square", period=0.3,
+                     effects={"current_saturation": {"i_max": 0.72}}, settings={"pid_offset": 0.0})
+    share = json.loads(Path(str(out) + ".truth.json").read_text())["i_limited_share"]
+    assert 0.01 <= share <= 0.04, share
+    return read_record(path, plausibility="warn")
 
 
 def test_limit_starts_lie_below_the_demanded_peak():
@@ -36,12 +50,11 @@ def test_limit_starts_lie_below_the_demanded_peak():
     assert grid and all(0.2 < s < 1.5 for s in grid)
 
 
-def test_current_saturation_starts_from_the_record_not_from_the_calibrated_offset(tmp_path):
+def test_current_saturation_starts_from_the_record_not_from_the_calibrated_offset(limited):
     """The starts of ``current_saturation`` come from the recorded input through the amplifier's
     law, with the calibrated D/A offset and with the one the calibration started from: a baseline
     whose u_0 absorbed the limit (the issue's 0.75 V) still gets starts where the limit acts."""
-    rec = read_record(synth_ivp(tmp_path / "l.csv", duration=2.0, seed=3, reference="square", period=0.3,
-                                effects={"current_saturation": {"i_max": 0.72}}), plausibility="warn")
+    rec = limited
     base = baseline_params()
     prob = Problem(rec, base, 1e-3, 1e-3, np.ones(rec.n, bool))
     eff = CATALOGUE["current_saturation"]
@@ -53,31 +66,23 @@ def test_current_saturation_starts_from_the_record_not_from_the_calibrated_offse
         assert any(abs(s - 0.72) < 0.05 for s in starts), (u_0, starts)     # one near the truth
 
 
-def test_a_brief_current_limit_of_the_independent_emulator_is_found(tmp_path):
-    """Issue 22's case: a current limit under the square reference of 0.06 MU that bites in about
-    2 % of the samples (0.72 A, period 0.3 s; the issue's other simulator had 0.8 A at 1.6 %), on a
-    short record of the independent emulator: found as ``current_saturation``, i_max within 5 %."""
-    path = synth_ivp(tmp_path / "l.csv", duration=4.0, seed=7, reference="square", period=0.3,
-                     effects={"current_saturation": {"i_max": 0.72}}, settings={"pid_offset": 0.0})
-    share = json.loads((tmp_path / "l.csv.truth.json").read_text())["i_limited_share"]
-    assert 0.01 <= share <= 0.04, share
-    d = diagnose(read_record(path, plausibility="warn"))
+def test_a_brief_current_limit_of_the_independent_emulator_is_found(limited):
+    """Issue 22's case (:func:`limited`): found as ``current_saturation``, i_max within 5 %."""
+    d = diagnose(limited)
     assert d.selected[:1] == ["current_saturation"], (d.selected, [(c["effect"], c["held_out_gain"])
                                                                    for c in d.candidates])
     assert d.parameters["i_max"] == pytest.approx(0.72, rel=0.05)
     assert d.to_json()["verdict"] != "calibration failed", d.warnings
 
 
-def test_a_model_on_a_bound_is_retried_with_the_candidates_present(tmp_path):
+def test_a_model_on_a_bound_is_retried_with_the_candidates_present(limited):
     """A model whose D/A offset absorbed a brief current limit and ran onto its bound (u_0 = 1 V,
     as the issue's final model): refitted from the calibration's start with each candidate present,
     the limit joins (i_max within 5 %) and the offset leaves the bound."""
     from maglev_cosim.diagnosis.pipeline import BLOCK, Search, calibrate, retry_on_bounds
     from maglev_cosim.diagnosis.verdict import on_bounds
 
-    rec = read_record(synth_ivp(tmp_path / "l.csv", duration=4.0, seed=7, reference="square", period=0.3,
-                                effects={"current_saturation": {"i_max": 0.72}}, settings={"pid_offset": 0.0}),
-                      plausibility="warn")
+    rec = limited
     fit_mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
     base = baseline_params()
     cal = calibrate(rec, base, fit_mask, lambda s: None)

@@ -117,6 +117,7 @@ def test_a_friction_is_located_at_the_mechanics_with_its_step(tmp_path, F_c):
     assert np.mean(f[v < -2e-3]) > np.mean(f[v > 2e-3])      # against the motion on either side of v = 0
 
 
+@pytest.mark.slow      # the quick tier has the rig emulator's record without effects (above)
 def test_a_record_without_effects_of_the_independent_emulator_locates_nothing(tmp_path):
     """The same with no effect: no correction, the velocity's included, removes 5 % of the held-out
     residual."""
