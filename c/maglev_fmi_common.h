@@ -125,7 +125,7 @@ void mf_release(MfInstance *f);
 int mf_uri_to_path(const char *uri, char *out, size_t len);
 
 /* The GUID an instance of model accepts. A calibrated or rig FMU is a model of its own with a GUID of its
- * own, issued by the packager (maglev_cosim.report.calibrated_fmu) and stated in resources_dir/guid.txt:
+ * own, issued by the packager (maglev_cosim.plant.calibrated_fmu) and stated in resources_dir/guid.txt:
  * with that file exactly that GUID, without it exactly model->guid, so a description and a binary or
  * resources that do not belong together are still refused. Returns 0 with guid set, or -1 with msg when
  * guid.txt is there but holds no GUID. */

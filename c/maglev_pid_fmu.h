@@ -1,7 +1,7 @@
 /* The controller FMU's model (build/maglev_pid.fmu, FMI 2.0; build/maglev_pid3.fmu, FMI 3.0): the paper's
  * discrete PID (Eq. 24/25, maglev_pid_step of maglev_replay.c) with a step reference, behind the FMI glue
  * (maglev_fmi_common.h) as the plant is. Its variable table has the plant's MaglevVariable layout, so
- * python/maglev_cosim/model_description.py generates its model descriptions (modelDescription_pid.xml,
+ * python/maglev_cosim/plant/model_description.py generates its model descriptions (modelDescription_pid.xml,
  * modelDescription_pid3.xml) from this table too. */
 #ifndef MAGLEV_PID_FMU_H
 #define MAGLEV_PID_FMU_H

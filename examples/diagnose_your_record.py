@@ -4,8 +4,8 @@ import tempfile
 from pathlib import Path
 
 from maglev_cosim.diagnosis import diagnose
-from maglev_cosim.record import read_record
-from maglev_cosim.synth import synth_record
+from maglev_cosim.records.record import read_record
+from maglev_cosim.records.synth import synth_record
 
 folder = Path(tempfile.mkdtemp())
 path = Path(sys.argv[1]) if len(sys.argv) > 1 else synth_record(folder / "rec.csv", duration=6.0, seed=4,

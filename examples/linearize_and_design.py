@@ -1,10 +1,10 @@
 """Linearise the plant (Eq. 16-19), close the loop with the paper's PID, and compare a redesign."""
 import control
 
-from maglev_cosim.analysis import discrete_closed_loop
-from maglev_cosim.linear import linearize
-from maglev_cosim.params import get_params
-from maglev_cosim.pid import PID
+from maglev_cosim.loop.design import discrete_closed_loop
+from maglev_cosim.plant.linear import linearize
+from maglev_cosim.plant.params import get_params
+from maglev_cosim.loop.pid import PID
 
 p = get_params("eq18")
 G = linearize(p, 0.0032, i=0.5612)                     # StateSpace: states x, v, i; input u; output y

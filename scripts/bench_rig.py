@@ -15,13 +15,12 @@ from __future__ import annotations
 import argparse
 import datetime
 import os
-import platform
-import re
 import sys
 import time
 from pathlib import Path
 
-from maglev_cosim import rigfit
+import benchdoc
+from maglev_cosim.diagnosis import real_rig
 from maglev_cosim.rigs import load_rig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,18 +38,6 @@ def _data_dir(arg: str | None) -> Path:
     sys.exit("bench_rig: the shared real records were not found (--data, $MAGLEV_REAL_DATA or ../shared/data/real)")
 
 
-def _machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{os.cpu_count()} cores, {cpu}, Python {platform.python_version()}"
-
-
 def _skill_cell(p: dict, who: str) -> str:
     v = p["skill"].get(who)
     return "–" if v is None else f"{v:+.2f}"
@@ -59,14 +46,14 @@ def _skill_cell(p: dict, who: str) -> str:
 def section(res: dict, command: str, wall_s: float) -> str:
     comp = res["comparison"]
     lines = [SECTION, "",
-             f"Written by `scripts/bench_rig.py` on {datetime.date.today().isoformat()} ({_machine()}); wall time "
+             f"Written by `scripts/bench_rig.py` on {datetime.date.today().isoformat()} ({benchdoc.machine()}); wall time "
              f"{wall_s:.0f} s. The command it runs is equivalent to:", "", "```", command, "```", "",
              f"Verdict: **{res['verdict']}**.", "",
              "Median skill against 'stays put' of the gap predicted ahead (worst segment in brackets): the model "
              "(physics with its effects and its calibrated disturbance model, driven by the measured PWM duty), "
              "the black-box baseline (one ridge regression per horizon on the last 30 ms of gap differences and "
              "the measured current and its square up to the predicted instant, fitted by the tool on the three "
-             "calibration records) and 'constant velocity'.", "", *rigfit.comparison_table(comp)]
+             "calibration records) and 'constant velocity'.", "", *real_rig.comparison_table(comp)]
     lines += ["", "Per segment: the current from the PWM duty (fit %), and the skill of model / black box at each "
               "horizon.", "", "| segment | role | current from PWM | 5 ms | 20 ms | 50 ms |", "|---|---|---|---|---|---|"]
     rows = [(s["label"], "calibration", s["after"]) for e in res["records"] for s in e["segments"]]
@@ -91,13 +78,6 @@ def section(res: dict, command: str, wall_s: float) -> str:
     return "\n".join(lines)
 
 
-def write(doc: Path, text: str) -> None:
-    old = doc.read_text() if doc.exists() else "# Benchmarks and measured figures\n"
-    pat = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    new = pat.sub(lambda _: text + "\n", old) if pat.search(old) else old.rstrip("\n") + "\n\n" + text + "\n"
-    doc.write_text(new)
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", help="the shared real records (default: $MAGLEV_REAL_DATA or ../shared/data/real)")
@@ -112,13 +92,13 @@ def main(argv: list[str] | None = None) -> int:
                + "".join(" --validate " + f'"$I/{n} - KF.mat"' for n in VALIDATION)
                + " --rig inteco-mls2em --out out/inteco")
     t0 = time.perf_counter()
-    res = rigfit.run(load_rig("inteco-mls2em"), cal, a.out, validate=val,
+    res = real_rig.run(load_rig("inteco-mls2em"), cal, a.out, validate=val,
                      progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True))
     wall = time.perf_counter() - t0
     text = section(res, command, wall)
     print(text)
     if not a.no_write:
-        write(ROOT / "docs" / "benchmarks.md", text)
+        benchdoc.replace_section(SECTION, text)
         print(f"wrote the section of {ROOT / 'docs' / 'benchmarks.md'}")
     return 0
 

@@ -91,5 +91,5 @@ cmake -S . -B build -DCMAKE_BUILD_TYPE=Release >/dev/null
 cmake --build build --parallel 2 >/dev/null
 test -f build/maglev.fmu && test -f build/maglev3.fmu && test -f build/maglev_pid.fmu && test -f build/maglev_pid3.fmu
 echo "[setup] writing the closed loop: build/maglev_loop.ssp and build/maglev_loop.fmu (container)"
-.venv/bin/python -m maglev_cosim.loopfmu build >/dev/null
+.venv/bin/python -m maglev_cosim.loop.loop_fmu build >/dev/null
 test -f build/maglev_loop.ssp && test -f build/maglev_loop.fmu

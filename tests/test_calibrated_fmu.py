@@ -11,8 +11,8 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
-from maglev_cosim.model_description import GUID
-from maglev_cosim.report import calibrated_fmu, issued_guid
+from maglev_cosim.plant.model_description import GUID
+from maglev_cosim.plant.calibrated_fmu import calibrated_fmu, issued_guid
 
 PARAMS = {"T_d": 0.003, "k_c": 7.1e-6, "x_0": 0.0081}
 

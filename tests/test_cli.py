@@ -169,7 +169,7 @@ def test_synth_then_diagnose_writes_the_report_and_a_valid_calibrated_fmu(tmp_pa
     import hashlib
     import zipfile
 
-    from maglev_cosim.model_description import GUID
+    from maglev_cosim.plant.model_description import GUID
 
     desc = read_model_description(str(fmu))
     with zipfile.ZipFile(fmu) as z:

@@ -1,4 +1,4 @@
-"""The loop layer's controllers (maglev_cosim.controllers, MaglevController in c/maglev_replay.h):
+"""The loop layer's controllers (maglev_cosim.loop.controllers, MaglevController in c/maglev_replay.h):
 PID, cascade and state feedback with an observer, each in C and in Python (cross-checked), in
 closed loop on every backend, the band anti-windup, controller files and their errors, the design
 on the C plant's linearisation, and the declared controllers checked on the shared real records."""
@@ -10,13 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglev_cosim import fast
-from maglev_cosim.controllers import (Cascade, ControllerError, StateFeedback, design_state_feedback, discrete_plant,
+from maglev_cosim.loop import fast_loop
+from maglev_cosim.loop.controllers import (Cascade, ControllerError, StateFeedback, design_state_feedback, discrete_plant,
                                       load_controller, start)
-from maglev_cosim.loop import reference_signal, simulate
-from maglev_cosim.metrics import nrmse_fit
-from maglev_cosim.params import get_params
-from maglev_cosim.pid import PID
+from maglev_cosim.loop.simulate import reference_signal, simulate
+from maglev_cosim.diagnosis.metrics import nrmse_fit
+from maglev_cosim.plant.params import get_params
+from maglev_cosim.loop.pid import PID
 from maglev_cosim.rigs import load_rig
 
 from real_data import REAL
@@ -48,7 +48,7 @@ def test_python_and_c_controllers_agree_on_the_same_signals(lqi):
     band = PID(kp=2.0, ki=30.0, kd=0.01, tf=1e-3, anti_windup="band", i_lo=-0.5, i_hi=0.5, backoff=0.9)
     for ctl in (PID(anti_windup="conditional"), band, CASCADE, lqi):
         x0 = (X, 0.0, 0.55)
-        c = fast.control(ctl, w, y, i, 0.37, x0)
+        c = fast_loop.control(ctl, w, y, i, 0.37, x0)
         run = start(ctl, 0.37, x0, w[0])
         py = np.array([run.step(w[k], y[k], i[k]) for k in range(n)])
         assert np.max(np.abs(c - py)) < 1e-12, type(ctl).__name__
@@ -57,7 +57,7 @@ def test_python_and_c_controllers_agree_on_the_same_signals(lqi):
 
 def test_band_anti_windup_integrates_only_inside_the_band():
     pid = PID(kp=0.0, ki=100.0, kd=0.0, u_min=-10, u_max=10, anti_windup="band", i_lo=-0.5, i_hi=0.5, backoff=0.9)
-    u = fast.pid_only(pid, np.ones(20), np.zeros(20), 0.0)
+    u = fast_loop.pid_only(pid, np.ones(20), np.zeros(20), 0.0)
     # +0.1 per sample from 0 while the integral lies inside (-0.5, 0.5); at 0.5 it is pulled back
     # to 0.45 and integrates again
     assert np.allclose(u[:9], [0.1, 0.2, 0.3, 0.4, 0.5, 0.45, 0.55, 0.45, 0.55])
@@ -88,7 +88,7 @@ def test_discrete_linearisation_matches_the_continuous_one():
     of Eq. 14-17 (linear.linearize), discretised by python-control."""
     import control
 
-    from maglev_cosim.linear import linearize
+    from maglev_cosim.plant.linear import linearize
 
     p = LAGGED
     d = discrete_plant(p, X, 1e-4)
@@ -182,8 +182,8 @@ def test_levitador_cascade_reproduces_each_recorded_loop():
     """The declared cascade, each loop fed the recorded signals, against the record's current
     reference and voltage: what is left is the record's print precision (0.1 mm through the
     derivative, 1e-4 A and V)."""
-    from maglev_cosim.measured import read_levitador
-    from maglev_cosim.rigfit import controller_check
+    from maglev_cosim.records.measured import read_levitador
+    from maglev_cosim.diagnosis.real_rig import controller_check
 
     rig = load_rig("levitador")
     res = controller_check(rig, read_levitador(LEVITADOR), load_controller("levitador-cascade").controller)
@@ -203,8 +203,8 @@ def test_levitador_cascade_reproduces_each_recorded_loop():
 def test_levitador_record_contradicts_its_rig_files_current_scale():
     """The shipped levitador rig (the benchmark's published model) carries under 20 % of the ball's
     weight at the recorded currents, and Ohm's law wants a larger current too: both say so."""
-    from maglev_cosim.measured import read_levitador
-    from maglev_cosim.rigfit import force_balance
+    from maglev_cosim.records.measured import read_levitador
+    from maglev_cosim.diagnosis.real_rig import force_balance
 
     fb = force_balance(load_rig("levitador"), read_levitador(LEVITADOR))
     assert not fb["consistent"] and fb["median"] < 0.2 and fb["current_scale_for_weight"] > 2
@@ -214,16 +214,16 @@ def test_levitador_record_contradicts_its_rig_files_current_scale():
 
 
 def _inteco(profile, name):
-    from maglev_cosim.measured import read_inteco_mat
+    from maglev_cosim.records.measured import read_inteco_mat
 
     return read_inteco_mat(REAL / "inteco-mls2em" / "results" / profile / name)
 
 
 @pytest.mark.parametrize("factor, words", [(20.0, "outside rig levitador's travel"), (1e-4, "m read as mm?")])
 def test_a_record_whose_position_contradicts_the_rig_is_refused_naming_the_column(tmp_path, factor, words):
-    from maglev_cosim.measured import Measured
-    from maglev_cosim.record import RecordError
-    from maglev_cosim.rigfit import prepare
+    from maglev_cosim.records.measured import Measured
+    from maglev_cosim.records.record import RecordError
+    from maglev_cosim.diagnosis.real_rig import prepare
 
     n = 500
     t = np.arange(n) * 0.01
@@ -260,8 +260,8 @@ def test_a_record_declares_its_controller_file_and_the_replay_runs_it(tmp_path):
     """A CE152 record whose metadata names a controller file (docs/record-format.md): the file is
     read relative to the record, its controller replays the record exactly, and its limits are
     the record's."""
-    from maglev_cosim.record import read_record
-    from maglev_cosim.replay import record_controller, replay
+    from maglev_cosim.records.record import read_record
+    from maglev_cosim.diagnosis.replay import record_controller, replay
 
     (tmp_path / "ctl").mkdir()
     (tmp_path / "ctl" / "cascade.toml").write_text(CE152_CASCADE)
@@ -282,7 +282,7 @@ def test_a_record_declares_its_controller_file_and_the_replay_runs_it(tmp_path):
     (lambda t: t.replace("# ts: 0.001", "# ts: 0.002"), r"rec.csv:1:\d+: ts 0.002 disagrees with the sample time 0.001"),
 ])
 def test_a_declared_controller_file_that_does_not_fit_is_refused_where_the_record_says_it(tmp_path, edit, words):
-    from maglev_cosim.record import RecordError, read_record
+    from maglev_cosim.records.record import RecordError, read_record
 
     (tmp_path / "ctl").mkdir()
     (tmp_path / "ctl" / "cascade.toml").write_text(CE152_CASCADE)
@@ -298,7 +298,7 @@ def test_the_diagnosis_runs_a_record_with_a_declared_cascade_and_finds_its_lag(t
     """A CE152 record of the cascade on a plant with a 2 ms amplifier lag (Eq. 2): every replay of
     the diagnosis runs the declared cascade, so the lag is found (measured: T_a = 2.000 ms)."""
     from maglev_cosim.diagnosis import diagnose
-    from maglev_cosim.record import read_record
+    from maglev_cosim.records.record import read_record
 
     (tmp_path / "ctl").mkdir()
     (tmp_path / "ctl" / "cascade.toml").write_text(CE152_CASCADE)

@@ -7,11 +7,12 @@ import control
 import numpy as np
 import pytest
 
-from maglev_cosim import fast
-from maglev_cosim.analysis import discrete_closed_loop
-from maglev_cosim.linear import operating_point
-from maglev_cosim.loop import LoopResponse, reference_signal, simulate
-from maglev_cosim.params import PlantParams, get_params
+from maglev_cosim.plant import fast
+from maglev_cosim.loop import fast_loop
+from maglev_cosim.loop.design import discrete_closed_loop
+from maglev_cosim.plant.linear import operating_point
+from maglev_cosim.loop.simulate import LoopResponse, reference_signal, simulate
+from maglev_cosim.plant.params import PlantParams, get_params
 
 X = 0.0032
 
@@ -55,7 +56,7 @@ def test_fast_path_matches_the_fmu_to_1e12(fmu_path):
     assert np.max(np.abs(a["x"] - b["x"])) <= 1e-15
     # the low level takes a PlantParams as readily as a mapping
     op = operating_point(p, X)
-    c = fast.closed_loop(p.replace(x_start=X, i_start=op.i), w, u_hold=op.u_MU)
+    c = fast_loop.closed_loop(p.replace(x_start=X, i_start=op.i), w, u_hold=op.u_MU)
     assert np.array_equal(c["y"], b["y"])
 
 
@@ -92,7 +93,7 @@ def _has_pandas() -> bool:
 
 
 def test_fast_open_loop_matches_the_fmu(fmu_path):
-    from maglev_cosim.fmu import FmuPlant
+    from maglev_cosim.loop.fmu import FmuPlant
 
     p = get_params("section3").replace(T_d=1.5e-3, x_start=X, i_start=operating_point(get_params("section3"), X).i)
     u = operating_point(p, X).u_MU * (1 + 0.01 * np.sin(np.arange(300) * 0.05))
@@ -109,16 +110,16 @@ def test_fast_open_loop_matches_the_fmu(fmu_path):
 def test_fast_path_rejects_bad_parameters_and_data():
     w = np.full(100, 0.4)
     with pytest.raises(ValueError, match="m_k"):
-        fast.closed_loop({"m_k": -1.0, "x_start": X}, w, u_hold=0.37)
+        fast_loop.closed_loop({"m_k": -1.0, "x_start": X}, w, u_hold=0.37)
     with pytest.raises(ValueError, match="nonsense"):
-        fast.closed_loop({"nonsense": 1.0}, w)
+        fast_loop.closed_loop({"nonsense": 1.0}, w)
     w[50] = np.nan
     with pytest.raises(ValueError, match=r"w\[50\]"):
-        fast.closed_loop({"x_start": X}, w, u_hold=0.37)
+        fast_loop.closed_loop({"x_start": X}, w, u_hold=0.37)
 
 
 def test_closed_loop_result_writes_a_record(tmp_path, fmu_path):
-    from maglev_cosim.record import read_record
+    from maglev_cosim.records.record import read_record
 
     p = get_params("section3")
     res = simulate(p, reference_signal("square", 2.5, 1e-3, base=0.4, amplitude=0.03, period=1.0),
@@ -179,9 +180,9 @@ def test_rig_physics_agrees_between_the_c_plant_and_the_reference(name):
     """The voltage-driven coil and the other force laws, written twice (C and Python), agree in open
     loop: from rest at the equilibrium, a 2 % input wobble lifts or drops the ball within 0.3 s
     (the open-loop plant is unstable), so the comparison crosses free flight and a stop."""
-    from maglev_cosim.reference import ReferencePlant
+    from maglev_cosim.plant.reference import ReferencePlant
 
-    from maglev_cosim.formulas import point
+    from maglev_cosim.plant.formulas import point
 
     base = get_params("baseline").replace(**RIG_PHYSICS[name])
     op = point(base, base.x_start)

@@ -14,10 +14,10 @@ import pytest
 
 from maglev_cosim.diagnosis import CATALOGUE, diagnose
 from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
-from maglev_cosim.record import read_record
-from maglev_cosim.replay import replay
-from maglev_cosim.rig import RigConfig, reference, simulate_rig
-from maglev_cosim.synth import synth_record
+from maglev_cosim.records.record import read_record
+from maglev_cosim.diagnosis.replay import replay
+from maglev_cosim.records.emulator import RigConfig, reference, simulate_rig
+from maglev_cosim.records.synth import synth_record
 
 #: The diagnosis matrix takes minutes: the slow tier (``pytest -m slow``), which CI runs too.
 pytestmark = pytest.mark.slow
@@ -94,9 +94,9 @@ def test_effect_found_recovered_and_residual_at_noise(name, tmp_path_factory):
 
 
 OUTSIDE = {
-    # an amplifier whose current slews at 20 A/s at most: an effect the catalogue lacks (rig.py)
+    # an amplifier whose current slews at 20 A/s at most: an effect the catalogue lacks (records/emulator.py)
     "slew_rate": ({"slew_rate": {"di_max": 20.0}}, None),
-    # a sensor whose reading wiggles with the position (20 mV, period 0.5 mm; rig.py)
+    # a sensor whose reading wiggles with the position (20 mV, period 0.5 mm; records/emulator.py)
     "sensor_ripple": ({"sensor_ripple": {"A_r": 0.02, "lambda_r": 5e-4}}, None),
 }
 
@@ -127,7 +127,7 @@ def test_effect_outside_the_catalogue_is_reported_honestly(name, tmp_path_factor
 
 
 def test_a_sensor_ripple_outside_the_catalogue_ends_unexplained_at_the_sensor(tmp_path_factory):
-    """The fifth, undeclared effect (docs: rig.py's sensor_ripple): no catalogue effect is credited
+    """The fifth, undeclared effect (docs: records/emulator.py's sensor_ripple): no catalogue effect is credited
     with it, and the verdict names the sensor as where the residual enters."""
     rec, d, *_ = run_case("sensor_ripple", tmp_path_factory)
     j = d.to_json()

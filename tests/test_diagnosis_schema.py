@@ -1,5 +1,5 @@
 """One schema for every diagnosis (docs/diagnosis-json.md): a CE152 record and a real rig's record
-give the same kinds of files and the keys of rigfit.SHARED_KEYS in diagnosis.json."""
+give the same kinds of files and the keys of real_rig.SHARED_KEYS in diagnosis.json."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ FILES = ("diagnosis.json", "report.md", "report.html", "maglev_calibrated.fmu")
 
 
 def _check(out):
-    from maglev_cosim.rigfit import SHARED_KEYS
+    from maglev_cosim.diagnosis.real_rig import SHARED_KEYS
 
     for f in FILES:
         assert (out / f).is_file(), f
@@ -36,7 +36,7 @@ def _check(out):
 @need_real
 def test_a_ce152_record_and_an_inteco_record_give_the_same_files_and_keys(tmp_path):
     from maglev_cosim.cli import main
-    from maglev_cosim.synth import synth_record
+    from maglev_cosim.records.synth import synth_record
 
     rec = synth_record(tmp_path / "rec.csv", effects={"delay": {"T_d": 0.003}}, reference="square", period=1.0,
                        duration=3.0, seed=2)

@@ -1,4 +1,4 @@
-"""The independent emulator (``maglev_cosim.emulator_ivp``, issue 22 item 5): written from the paper,
+"""The independent emulator (``maglev_cosim.records.emulator_ivp``, issue 22 item 5): written from the paper,
 sharing no code with the model. Its agreement with the pure-Python reference, its controller timing,
 its effects, noise and converters, and its records."""
 
@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from scipy.signal import welch
 
-from maglev_cosim import emulator_ivp as E
-from maglev_cosim.loop import reference_signal, simulate as loop_simulate
-from maglev_cosim.record import read_record
+from maglev_cosim.records import emulator_ivp as E
+from maglev_cosim.loop.simulate import reference_signal, simulate as loop_simulate
+from maglev_cosim.records.record import read_record
 
 QUIET = E.IvpConfig(quantise=False)       # with noise=False: the paper's equations alone
 W0 = float(E.reading_mu(QUIET, 3.2e-3))   # the reading at the paper's operating point
@@ -26,7 +26,8 @@ def _run(w, **kw):
 
 
 def test_shares_no_code_with_the_model():
-    """Only params (values by name), numpy and scipy at import; the record writer (I/O) when writing."""
+    """Only params (values by name), the settings check the emulators share (emulation: no physics), numpy
+    and scipy, and the record writer (I/O)."""
     tree = ast.parse(inspect.getsource(E))
     imported = set()
     for node in ast.walk(tree):
@@ -35,7 +36,7 @@ def test_shares_no_code_with_the_model():
         elif isinstance(node, ast.Import):
             imported.update(a.name for a in node.names)
     ours = {m for m in imported if m.startswith(".") or m.startswith("maglev_cosim")}
-    assert ours == {".params", ".record"}, ours
+    assert ours == {"..plant.params", ".record", ".emulation"}, ours
     assert not imported & {"cffi", "ctypes"}
 
 
@@ -302,7 +303,7 @@ def test_disturbance_draws_and_the_command_line(tmp_path):
     """The benchmark's disturbance family drives it as it drives the rig emulator, and
     ``maglev-cosim synth --emulator ivp`` writes its record."""
     from maglev_cosim.cli import main
-    from maglev_cosim.synth import draw_disturbance
+    from maglev_cosim.records.synth import draw_disturbance
 
     dist = draw_disturbance(400)
     path = E.synth_record(tmp_path / "d.csv", seed=400, disturbance=dist, duration=1.5, reference="square")

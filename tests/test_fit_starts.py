@@ -13,9 +13,9 @@ import pytest
 from maglev_cosim.diagnosis import diagnose
 from maglev_cosim.diagnosis.effects import CATALOGUE, LIMIT_QUANTILES, demanded_current, limit_starts
 from maglev_cosim.diagnosis.problem import Problem
-from maglev_cosim.emulator_ivp import synth_record as synth_ivp
-from maglev_cosim.record import read_record
-from maglev_cosim.replay import baseline_params
+from maglev_cosim.records.emulator_ivp import synth_record as synth_ivp
+from maglev_cosim.records.record import read_record
+from maglev_cosim.diagnosis.replay import baseline_params
 
 
 @pytest.fixture(scope="module")

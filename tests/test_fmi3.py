@@ -18,10 +18,10 @@ from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
 import maglev_cosim
-from maglev_cosim.fmu import FmuError, FmuPlant
-from maglev_cosim.loop import reference_signal, simulate
-from maglev_cosim.model_description import GUID
-from maglev_cosim.params import get_params
+from maglev_cosim.loop.fmu import FmuError, FmuPlant
+from maglev_cosim.loop.simulate import reference_signal, simulate
+from maglev_cosim.plant.model_description import GUID
+from maglev_cosim.plant.params import get_params
 
 X = 0.0032
 
@@ -132,7 +132,7 @@ def test_state_save_restore_and_serialization_through_fmpy(fmu3):
 def test_closed_loop_pid_step_matches_the_2_0_fmu_to_1e12(fmu3, fmu_path):
     """The paper's PID (Eq. 24/25) at 1 kHz, 0.05 MU step from 3.2 mm over 2 s, through fmpy on both FMUs
     (loop.simulate's FMU backend; FmuPlant picks FMU2Slave or FMU3Slave). Measured: identical (0.0)."""
-    from maglev_cosim.linear import operating_point
+    from maglev_cosim.plant.linear import operating_point
 
     p = get_params("section3")
     w = reference_signal("step", 2.0, 1e-3, base=operating_point(p, X).y_MU, amplitude=0.05, t_step=0.0)

@@ -38,7 +38,7 @@ from fmpy import read_model_description, simulate_fmu
 import maglev_cosim
 from conftest import REPO
 from maglev_cosim._resources import pid_fmu_path
-from maglev_cosim.formulas import point
+from maglev_cosim.plant.formulas import point
 
 H = 1e-3            # communication step [s] of every run here (the FMUs' default experiment step)
 N = 200             # steps of the input-driven runs
@@ -103,7 +103,7 @@ def _make(name: str, tmp: Path) -> Kind:
         assert main(["fmu", "--rig", "inteco-mls2em", "--out", str(out)]) == 0
         return _levitating(out, 2)
     if name == "calibrated":
-        from maglev_cosim.report import calibrated_fmu
+        from maglev_cosim.plant.calibrated_fmu import calibrated_fmu
 
         # what write_calibrated_fmu (the diagnosis) writes, without a diagnosis to run: calibrated
         # start values, its own GUID, model name and description, calibration.json, the report as documentation

@@ -10,8 +10,8 @@ import pytest
 from fmpy import extract, simulate_fmu
 from fmpy.fmi1 import FMICallException
 
-from maglev_cosim.checks import comm_step_study, run_with_comm_step, staircase_input
-from maglev_cosim.fmu import FmuError, FmuPlant
+from maglev_cosim.loop.checks import comm_step_study, run_with_comm_step, staircase_input
+from maglev_cosim.loop.fmu import FmuError, FmuPlant
 
 X_OP = 0.0032
 

@@ -1,14 +1,14 @@
 """The plant's formulas (equilibrium, sensor and its inverse, force slopes) live once, in C; here
-they are checked against the independent pure-Python reference plant (reference.py)."""
+they are checked against the independent pure-Python reference plant (plant/reference.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from maglev_cosim import formulas
-from maglev_cosim.params import get_params
-from maglev_cosim.reference import ReferencePlant
+from maglev_cosim.plant import formulas
+from maglev_cosim.plant.params import get_params
+from maglev_cosim.plant.reference import ReferencePlant
 
 
 @pytest.mark.parametrize("k_x2", [0.0, 3e4, -5e4])
@@ -22,7 +22,7 @@ def test_reading_and_its_inverse_agree_with_the_reference(k_x2):
     ys = np.array([formulas.point(p, x).y for x in xs])
     assert np.max(np.abs(ys - ref)) <= 1e-15
     back = formulas.positions(p, ys)
-    # the old inverse in identify.py ignored k_x2: off by k_x2*x*(x - x_cal)/k_x, up to 0.12 mm here
+    # the old inverse in diagnosis/identify.py ignored k_x2: off by k_x2*x*(x - x_cal)/k_x, up to 0.12 mm here
     assert np.max(np.abs(back - xs)) <= 1e-12
 
 
@@ -64,8 +64,8 @@ def test_plant_params_match_the_c_table():
     """PlantParams is the typed face of the C variable table: same names, order and defaults."""
     from dataclasses import fields
 
-    from maglev_cosim.fast import param_table
-    from maglev_cosim.params import PlantParams
+    from maglev_cosim.plant.fast import param_table
+    from maglev_cosim.plant.params import PlantParams
 
     table = param_table()
     assert [f.name for f in fields(PlantParams)] == list(table)
@@ -76,7 +76,7 @@ def test_plant_params_match_the_c_table():
 
 
 def test_plant_params_validate_with_the_c_rules():
-    from maglev_cosim.params import PlantParams
+    from maglev_cosim.plant.params import PlantParams
 
     PlantParams().validate()
     with pytest.raises(ValueError, match=r"variable k_c: must be in \[0, 1\] N.m2/A2, got -1"):

@@ -8,10 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from maglev_cosim import fast
-from maglev_cosim.fmu import FmuError, FmuPlant
-from maglev_cosim.record import Record
-from maglev_cosim.replay import baseline_params, replay
+from maglev_cosim.plant import fast
+from maglev_cosim.loop import fast_loop
+from maglev_cosim.loop.fmu import FmuError, FmuPlant
+from maglev_cosim.records.record import Record
+from maglev_cosim.diagnosis.replay import baseline_params, replay
 
 #: (variable, value): each one the fuzz campaign or a slip of units could produce.
 HOSTILE = [
@@ -38,7 +39,7 @@ def test_fmu_plant_refuses(fmu_path, name, value):
 def test_fast_path_refuses(name, value):
     w = np.full(50, 0.4)
     with pytest.raises(ValueError) as err:
-        fast.closed_loop({name: value}, w)
+        fast_loop.closed_loop({name: value}, w)
     assert f"variable {name}" in one_line(err.value)
     with pytest.raises(ValueError) as err:
         fast.open_loop({name: value}, np.full(50, 0.3))
@@ -60,7 +61,7 @@ def test_replay_refuses_before_any_arithmetic(name, value):
 
 def test_relations_are_checked_by_the_fast_path():
     with pytest.raises(ValueError, match="variable x_max: must be below x_0"):
-        fast.closed_loop({"x_max": 9e-3}, np.full(10, 0.4))
+        fast_loop.closed_loop({"x_max": 9e-3}, np.full(10, 0.4))
 
 
 def test_fmu_refuses_a_step_beyond_its_budget_and_carries_on(fmu_path):

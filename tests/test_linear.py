@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from maglev_cosim.linear import (EQ18_A, EQ18_B, EQ18_C, EQ18_POLES, EQ19_GAIN, PAPER_OPERATING_POINT,
+from maglev_cosim.plant.linear import (EQ18_A, EQ18_B, EQ18_C, EQ18_POLES, EQ19_GAIN, PAPER_OPERATING_POINT,
                                  equilibrium_current, linearize, operating_point, transfer_function)
-from maglev_cosim.params import get_params
+from maglev_cosim.plant.params import get_params
 
 X, _, I = PAPER_OPERATING_POINT
 
@@ -59,7 +59,7 @@ def test_without_amplifier_lag_the_model_has_two_states():
 def test_linearisation_matches_finite_differences_of_the_fmu(fmu_path):
     """The Jacobian taken numerically through the FMU itself (perturbed initial states and input,
     one short doStep, Φ ≈ I + A·h) agrees with the analytic one."""
-    from maglev_cosim.fmu import FmuPlant
+    from maglev_cosim.loop.fmu import FmuPlant
 
     p = get_params("eq18")
     op = operating_point(p, X)

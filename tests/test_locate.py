@@ -1,5 +1,5 @@
 """Generic corrections locate where a residual enters the loop (issue 7, item 5;
-maglev_cosim.diagnosis.locate). Emulator records (rig.py, written apart from the C plant) against
+maglev_cosim.diagnosis.locate). Emulator records (records/emulator.py, written apart from the C plant) against
 the nominal model, which is the emulator's own physics without the planted effect."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ import pytest
 from maglev_cosim.diagnosis.locate import LOCATIONS, generic_corrections, locate
 from maglev_cosim.diagnosis.pipeline import BLOCK
 from maglev_cosim.diagnosis.residual import noise_floor
-from maglev_cosim.record import read_record
-from maglev_cosim.replay import baseline_params, replay, replay_injected
-from maglev_cosim.synth import synth_record
+from maglev_cosim.records.record import read_record
+from maglev_cosim.diagnosis.replay import baseline_params, replay, replay_injected
+from maglev_cosim.records.synth import synth_record
 
 
 def _located(tmp_path, effects):
@@ -63,11 +63,11 @@ def test_injection_enters_where_it_says(tmp_path):
 @pytest.mark.parametrize("extra", [{}, {"T_a": 2e-3, "T_d": 1.5e-3}, {"i_max": 0.8, "k_x2": 300.0}])
 def test_a_replay_is_the_loop_simulate_runs_settled_at_the_first_reading(tmp_path, extra):
     """The replays of the fits work on parameter vectors, past the parameter objects: the same loop
-    as :func:`maglev_cosim.loop.simulate` from the same settled start, to the last bit."""
-    from maglev_cosim import fast, formulas
-    from maglev_cosim.loop import simulate
-    from maglev_cosim.params import as_params
-    from maglev_cosim.replay import record_controller
+    as :func:`maglev_cosim.loop.simulate.simulate` from the same settled start, to the last bit."""
+    from maglev_cosim.plant import fast, formulas
+    from maglev_cosim.loop.simulate import simulate
+    from maglev_cosim.plant.params import as_params
+    from maglev_cosim.diagnosis.replay import record_controller
 
     rec = read_record(synth_record(tmp_path / "r.csv", effects={"delay": {"T_d": 2e-3}}, seed=4, duration=2.0))
     values = {**baseline_params(), **extra}
@@ -86,7 +86,7 @@ def _ivp_located(tmp_path, effects, seed=7):
     """The independent emulator's record (its 0.3-of-a-sample computation delay taken away, which the
     model has only as an effect), against the calibrated baseline."""
     from maglev_cosim.diagnosis.pipeline import calibrate
-    from maglev_cosim.emulator_ivp import synth_record as synth_ivp
+    from maglev_cosim.records.emulator_ivp import synth_record as synth_ivp
 
     rec = read_record(synth_ivp(tmp_path / "f.csv", effects=effects, seed=seed, duration=6.0,
                                 settings={"pid_offset": 0.0}), plausibility="warn")
@@ -132,7 +132,7 @@ def test_a_friction_is_never_explained_by_another_effect(tmp_path, tried):
     ``coulomb_friction`` or ``unexplained: mechanics``, never ``explained`` by another effect."""
     from maglev_cosim.diagnosis import diagnose
     from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
-    from maglev_cosim.emulator_ivp import synth_record as synth_ivp
+    from maglev_cosim.records.emulator_ivp import synth_record as synth_ivp
 
     rec = read_record(synth_ivp(tmp_path / "f.csv", effects={"coulomb_friction": {"F_c": 1.65e-3}}, seed=7,
                                 duration=8.0), plausibility="warn")

@@ -15,10 +15,10 @@ from fmpy.validation import validate_fmu
 
 from conftest import host_binary
 from maglev_cosim._resources import pid_fmu_path
-from maglev_cosim.loop import reference_signal, simulate
-from maglev_cosim.loopfmu import STOP, loop_settings, write_container, write_ssp
-from maglev_cosim.model_description import PID_GUID, generate, pid_identity, read_pid_table
-from maglev_cosim.pid import PID
+from maglev_cosim.loop.simulate import reference_signal, simulate
+from maglev_cosim.loop.loop_fmu import STOP, loop_settings, write_container, write_ssp
+from maglev_cosim.plant.model_description import PID_GUID, generate, pid_identity, read_pid_table
+from maglev_cosim.loop.pid import PID
 
 
 @pytest.fixture(scope="module", params=[2, 3], ids=["fmi2", "fmi3"])
@@ -33,7 +33,7 @@ def test_pid_description_is_what_its_c_table_generates(repo, pid_binary):
     xml = {2: "modelDescription_pid.xml", 3: "modelDescription_pid3.xml"}[version]
     committed = (repo / xml).read_text()
     assert committed == generate(read_pid_table(binary), pid_identity(version), version), (
-        f"{xml} differs from the C table: run python -m maglev_cosim.model_description --pid --fmi {version} "
+        f"{xml} differs from the C table: run python -m maglev_cosim.plant.model_description --pid --fmi {version} "
         f"{binary} {repo / xml}")
     for src in ("c/maglev_pid_fmu.c", "tests/c/test_pid_fmu.c"):
         m = re.search(r'#define (?:MAGLEV_PID_)?GUID "(\{[^"]+\})"', (repo / src).read_text())
@@ -171,7 +171,7 @@ def test_pid_fmu_sources_build_a_working_binary(tmp_path):
 def test_container_links_or_exposes_every_port_of_both_fmus(fmu_path):
     """No port left dangling (fmu-manipulation-toolbox warns about each one when setup.sh builds the
     container): every input and output of the plant and the PID is linked, or is the container's."""
-    from maglev_cosim.loopfmu import container_description
+    from maglev_cosim.loop.loop_fmu import container_description
 
     desc = container_description(loop_settings())
     used = {(f, p) for f, p, _, _ in desc["link"]} | {(f, p) for _, _, f, p in desc["link"]}

@@ -1,5 +1,5 @@
-"""Real rigs' records as published (maglev_cosim.measured), the unknown-controller replay and the
-rig commands (maglev_cosim.rigfit). The shared records are read from $MAGLEV_REAL_DATA (default
+"""Real rigs' records as published (maglev_cosim.records.measured), the unknown-controller replay and the
+rig commands (maglev_cosim.diagnosis.real_rig). The shared records are read from $MAGLEV_REAL_DATA (default
 ../shared/data/real next to the clone); tests that need them are skipped where they are absent."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglev_cosim.measured import levitation_segments, read_inteco_mat, read_levitador, read_measured
-from maglev_cosim.record import RecordError
+from maglev_cosim.records.measured import levitation_segments, read_inteco_mat, read_levitador, read_measured
+from maglev_cosim.records.record import RecordError
 from maglev_cosim.rigs import load_rig
 
 from real_data import REAL
@@ -165,12 +165,12 @@ def test_unknown_controller_replay_beats_stays_put_on_an_mpc_record():
     """The MPC record (controller unknown to the tool): the published model, driven by the measured
     PWM duty, fits the coil current at over 80 % and predicts the gap 5 ms ahead better than
     'stays put' (measured: 85.2 % and skill +0.21 on the whole record)."""
-    from maglev_cosim import rigfit
+    from maglev_cosim.diagnosis import real_rig
 
     rig = load_rig("inteco-mls2em")
     m = read_inteco_mat(INTECO.parent / "results" / "multisteps_stairs" / "MPC - KF.mat")
-    (r,) = rigfit.prepare(rig, m)
-    f = rigfit.figures(rig, r, rig.params)
+    (r,) = real_rig.prepare(rig, m)
+    f = real_rig.figures(rig, r, rig.params)
     assert f["current"]["from_actuator"] > 80
     assert f["position"]["5 ms"]["skill_vs_stays_put"] > 0.05
     # the model is not merely the naive predictor: 50 ms ahead the open-loop instability wins
@@ -236,10 +236,10 @@ def test_a_real_record_without_its_rig_is_refused(tmp_path, capsys):
 def _inteco_record(rig, params, seed: int):
     """8 s of the Inteco model under the shipped LQI, the gap stepping between 10 and 8 mm every
     second, read through 10 um of sensor noise and 5 mA of current noise."""
-    from maglev_cosim.controllers import load_controller
-    from maglev_cosim.loop import simulate
-    from maglev_cosim.measured import Segment
-    from maglev_cosim.rigfit import RigRecord
+    from maglev_cosim.loop.controllers import load_controller
+    from maglev_cosim.loop.simulate import simulate
+    from maglev_cosim.records.measured import Segment
+    from maglev_cosim.diagnosis.real_rig import RigRecord
 
     rng = np.random.default_rng(seed)
     n = 8000
@@ -253,16 +253,16 @@ def _inteco_record(rig, params, seed: int):
 
 @pytest.mark.slow
 def test_effect_search_on_a_rig_finds_a_planted_force_lag_and_nothing_where_there_is_none():
-    """The catalogue's effects tried on a real rig's calibrated model (rigfit.effect_search), on
+    """The catalogue's effects tried on a real rig's calibrated model (real_rig.effect_search), on
     records of the Inteco model: a 3 ms force lag is selected with its time constant, and a
     record without it selects nothing."""
-    from maglev_cosim import rigfit
+    from maglev_cosim.diagnosis import real_rig
 
     rig = load_rig("inteco-mls2em")
-    found = rigfit.effect_search(rig, [_inteco_record(rig, rig.params.replace(T_F=3e-3), 1)], rig.params)
+    found = real_rig.effect_search(rig, [_inteco_record(rig, rig.params.replace(T_F=3e-3), 1)], rig.params)
     assert found["selected"] == ["force_lag"]
     assert found["parameters"]["T_F"] == pytest.approx(3e-3, rel=0.1)
-    none = rigfit.effect_search(rig, [_inteco_record(rig, rig.params, 2)], rig.params)
+    none = real_rig.effect_search(rig, [_inteco_record(rig, rig.params, 2)], rig.params)
     assert none["selected"] == [], none["candidates"]
 
 
@@ -309,7 +309,7 @@ def test_session_format_is_read_as_published(tmp_path):
     # the same content in UTF-8: no warning; and the format is told by the content, not the name
     g = tmp_path / "record.mat"
     _session(g, encoding="utf-8")
-    from maglev_cosim.measured import sniff
+    from maglev_cosim.records.measured import sniff
 
     assert sniff(g) == "columns" and sniff(f) == "columns"
     m2 = read_measured(g)
@@ -384,7 +384,7 @@ def test_session_format_counts_and_the_ce152_format_is_told_apart(tmp_path):
     f = tmp_path / "s.txt"
     _session(f, samples=2989)
     assert any("line 5 says 2989 samples, the file holds 300 data lines" in w for w in read_measured(f).warnings)
-    from maglev_cosim.measured import sniff
+    from maglev_cosim.records.measured import sniff
 
     ce = tmp_path / "rec.txt"
     ce.write_text("# ts: 0.001\n# controller: pid\nt,w,u,y\n" + "".join(f"{k / 1000:.3f},0.4,0.5,0.4\n" for k in range(300)))
@@ -443,7 +443,7 @@ def test_diagnose_the_shared_step_session_on_the_levitador_rig(tmp_path, capsys)
 def test_formats_are_told_by_content_not_by_name(tmp_path):
     import shutil
 
-    from maglev_cosim.measured import sniff
+    from maglev_cosim.records.measured import sniff
 
     mat = tmp_path / "inteco_run.bin"          # a MATLAB level-4 file (no text header) under another name
     shutil.copy(INTECO / "step" / "MPC - KF.mat", mat)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from maglev_cosim.metrics import correlation, nrmse_fit, psd, resid
+from maglev_cosim.diagnosis.metrics import correlation, nrmse_fit, psd, resid
 
 
 def test_nrmse_fit_matches_matlabs_definition():

@@ -10,8 +10,8 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from maglev_cosim.fmu import FmuPlant
-from maglev_cosim.model_description import GENERATION_DATE, GUID, UNITS, generate, nominal, read_table
+from maglev_cosim.loop.fmu import FmuPlant
+from maglev_cosim.plant.model_description import GENERATION_DATE, GUID, UNITS, generate, nominal, read_table
 
 REQUIRED_PARAMETERS = ["k_DA", "u_0", "k_i", "T_a", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD",
                        "y_MU0", "x_min", "x_max", "i_max", "x_start", "v_start", "i_start"]
@@ -22,7 +22,7 @@ def test_committed_xml_is_what_the_c_table_generates(repo, fmu_binary, fmi_versi
     committed = (repo / xml).read_text()
     generated = generate(read_table(fmu_binary), fmi_version=fmi_version)
     assert committed == generated, (
-        f"{xml} differs from the C variable table: run python -m maglev_cosim.model_description "
+        f"{xml} differs from the C variable table: run python -m maglev_cosim.plant.model_description "
         f"--fmi {fmi_version} {fmu_binary} {repo / xml}")
 
 

@@ -15,7 +15,7 @@ import pytest
 
 import maglev_cosim
 from maglev_cosim import _resources
-from maglev_cosim.fmu import FmuError, ensure_fmu
+from maglev_cosim.loop.fmu import FmuError, ensure_fmu
 
 STALE = "the installed package is older than the repository: run bash scripts/setup.sh"
 
@@ -70,7 +70,7 @@ def test_pid_fmu_path_api():
 
 
 def test_fast_library_is_installed_and_loads():
-    from maglev_cosim import fast
+    from maglev_cosim.plant import fast
 
     assert _resources.fast_library_path().is_file()
     assert "k_c" in fast.param_names()

@@ -6,10 +6,10 @@ import control
 import numpy as np
 import pytest
 
-from maglev_cosim.analysis import closed_loop_report, discrete_closed_loop
-from maglev_cosim.params import get_params
-from maglev_cosim import fast
-from maglev_cosim.pid import PID, DiscretePID, pid_continuous_tf, pid_tf
+from maglev_cosim.loop.design import closed_loop_report, discrete_closed_loop
+from maglev_cosim.plant.params import get_params
+from maglev_cosim.loop import fast_loop
+from maglev_cosim.loop.pid import PID, DiscretePID, pid_continuous_tf, pid_tf
 
 
 def test_hand_computed_samples():
@@ -88,7 +88,7 @@ def test_the_c_pid_and_the_python_pid_are_one_equation(cfg):
     rng = np.random.default_rng(3)
     w = 0.4 + 0.3 * np.sign(np.sin(np.arange(3000) / 150.0))
     y = 0.4 + 0.05 * rng.standard_normal(3000)
-    c = fast.pid_only(cfg, w, y, u_hold=0.37)
+    c = fast_loop.pid_only(cfg, w, y, u_hold=0.37)
     ctl = cfg.start(0.37)
     py = np.array([ctl.step(a, b) for a, b in zip(w, y)])
     assert np.mean(c == cfg.u_max) > 0.01 and np.mean(c == cfg.u_min) > 0.01   # both limits reached

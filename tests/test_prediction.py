@@ -8,15 +8,15 @@ import math
 import numpy as np
 import pytest
 
-from maglev_cosim import fast
+from maglev_cosim.loop import fast_loop
 from maglev_cosim.diagnosis.verdict import converter_step, on_bounds, own_share, predictable_share
-from maglev_cosim.loop import settled_start
-from maglev_cosim.params import get_params
-from maglev_cosim.pid import PID
-from maglev_cosim.record import Record, read_record
-from maglev_cosim.replay import NoiseModel, baseline_params, estimate_noise, predict
-from maglev_cosim.rig import LSB
-from maglev_cosim.synth import synth_record
+from maglev_cosim.loop.simulate import settled_start
+from maglev_cosim.plant.params import get_params
+from maglev_cosim.loop.pid import PID
+from maglev_cosim.records.record import Record, read_record
+from maglev_cosim.diagnosis.replay import NoiseModel, baseline_params, estimate_noise, predict
+from maglev_cosim.records.emulator import LSB
+from maglev_cosim.records.synth import synth_record
 
 NOISE = NoiseModel(q_force=2.5e-4, f_force=8.0, r_sensor=2.5e-4)
 
@@ -26,11 +26,11 @@ def _clean_record(params: dict[str, float], n: int = 3000) -> Record:
     p = get_params("baseline").replace(**{k: v for k, v in params.items() if k != "x_start"})
     start, u_hold = settled_start(p, 0.0032)
     w = np.full(n, 0.0)
-    sim0 = fast.closed_loop(start, np.zeros(1), pid=PID(), u_hold=u_hold)
+    sim0 = fast_loop.closed_loop(start, np.zeros(1), pid=PID(), u_hold=u_hold)
     w[:] = sim0["y"][0]
     w[n // 3:] += 0.04
     w[2 * n // 3:] -= 0.07
-    sim = fast.closed_loop(start, w, pid=PID(), u_hold=u_hold)
+    sim = fast_loop.closed_loop(start, w, pid=PID(), u_hold=u_hold)
     t = np.arange(n) * 1e-3
     return Record("clean", t, w, sim["u"], sim["y"], 1e-3, 2.0, 2.97, 0.01, 0.0, 1.0)
 
@@ -117,7 +117,7 @@ def test_an_amplifier_dead_zone_is_the_d_a_offset_so_it_is_opt_in(tmp_path, u_dz
     as the D/A offset u_0 lowered by u_dz (to rounding; bit-identical at u_0 = 0), which every fit calibrates. A record
     cannot show it, so the default catalogue does not try it."""
     from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
-    from maglev_cosim.replay import replay
+    from maglev_cosim.diagnosis.replay import replay
 
     rec = read_record(synth_record(tmp_path / "r.csv", duration=3.0, seed=2))
     base = baseline_params()
@@ -154,11 +154,11 @@ def test_a_model_s_own_records_carry_its_converters_rounding():
     shares = {}
     for bits in (10, 14):
         q = 2.0 / 2**bits
-        sim = fast.closed_loop(get_params("baseline").replace(x_start=0.0032), clean.w, y_step=q, u_step=q)
+        sim = fast_loop.closed_loop(get_params("baseline").replace(x_start=0.0032), clean.w, y_step=q, u_step=q)
         assert np.max(np.abs(sim["y"] / q - np.round(sim["y"] / q))) < 1e-9
         assert np.max(np.abs(sim["u"] / q - np.round(sim["u"] / q))) < 1e-9
         rec = Record("grid", clean.t, clean.w, sim["u"], sim["y"], 1e-3, 2.0, 2.97, 0.01, 0.0, 1.0)
         shares[bits] = own_share(rec, base, noise)
     assert shares[10] > 0.02 and shares[14] < 0.01, shares
     with pytest.raises(ValueError, match="y_step"):
-        fast.closed_loop(None, clean.w[:10], y_step=-1e-3)
+        fast_loop.closed_loop(None, clean.w[:10], y_step=-1e-3)

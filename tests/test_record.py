@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglev_cosim.record import RecordError, read_record, write_record
+from maglev_cosim.records.record import RecordError, read_record, write_record
 
 HEAD = "# ts: 0.001\n# controller: pid\n# kp: 2.0\n# ki: 2.97\n# kd: 0.01\n# u_min: 0.0\n# u_max: 1.0\n"
 
@@ -34,7 +34,7 @@ def test_good_record_loads_with_metadata_and_any_column_order(tmp_path):
 
 
 def test_filter_and_anti_windup_metadata_reach_the_controller(tmp_path):
-    from maglev_cosim.replay import record_controller
+    from maglev_cosim.diagnosis.replay import record_controller
 
     t = np.arange(3000) * 1e-3
     w = 0.4 + 0.05 * (t > 1)

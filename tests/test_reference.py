@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from maglev_cosim.linear import operating_point
-from maglev_cosim.params import get_params
-from maglev_cosim.reference import ReferencePlant
+from maglev_cosim.plant.linear import operating_point
+from maglev_cosim.plant.params import get_params
+from maglev_cosim.plant.reference import ReferencePlant
 
 
 def test_equilibrium_stays_put():

@@ -205,9 +205,9 @@ def report(tmp_path_factory) -> Path:
     """The report of a 3 s record with a planted 3 ms delay, diagnosed for the delay alone (the
     plots and tables of a full report, in a few seconds): its folder."""
     from maglev_cosim.diagnosis import diagnose
-    from maglev_cosim.record import read_record
-    from maglev_cosim.report import write_report
-    from maglev_cosim.synth import synth_record
+    from maglev_cosim.records.record import read_record
+    from maglev_cosim.report.diagnosis_report import write_report
+    from maglev_cosim.records.synth import synth_record
 
     folder = tmp_path_factory.mktemp("report")
     rec = read_record(synth_record(folder / "rec.csv", effects={"delay": {"T_d": 0.003}}, reference="square",

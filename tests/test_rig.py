@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from maglev_cosim.record import read_record
-from maglev_cosim.rig import LSB, RigConfig, position_to_mu, reference, simulate_rig
-from maglev_cosim.synth import parse_effect_spec, synth_record
+from maglev_cosim.records.record import read_record
+from maglev_cosim.records.emulator import LSB, RigConfig, position_to_mu, reference, simulate_rig
+from maglev_cosim.records.synth import parse_effect_spec, synth_record
 
 
 def quiet(**kw) -> RigConfig:
@@ -91,3 +91,19 @@ def test_square_and_sine_references_take_a_period():
     for kind, period in (("steps", 0.6), ("square", 0.0), ("sine", -1.0)):
         with pytest.raises(ValueError, match="period"):
             reference(kind, 1.0, 1e-3, period=period)
+
+
+def test_the_truth_sidecar_says_how_often_the_current_limit_acts(tmp_path):
+    """The benchmark plants a limit by the share of samples it acts in (scripts/diagnosis_matrix.py):
+    the sidecar gives that share and the current's percentiles, for both emulators' records."""
+    free = json.loads((synth_record(tmp_path / "a.csv", duration=3.0, seed=2, reference="square",
+                                    period=0.6).parent / "a.csv.truth.json").read_text())
+    assert free["i_limited_share"] == 0.0
+    pct = free["current_percentiles"]
+    assert len(pct) == 101 and pct == sorted(pct) and 0.3 < pct[50] < 1.0
+    i_max = 0.5 * (pct[99] + pct[100])           # below the transients' peaks only
+    bitten = json.loads((synth_record(tmp_path / "b.csv", duration=3.0, seed=2, reference="square", period=0.6,
+                                      effects={"current_saturation": {"i_max": i_max}}).parent
+                         / "b.csv.truth.json").read_text())
+    assert 0.0 < bitten["i_limited_share"] < 0.2
+    assert max(bitten["current_percentiles"]) <= i_max + 1e-12

@@ -1,19 +1,21 @@
 """The real-rig path's model terms that need no shared record: the drift of the filtered random
-force (rigfit.drift), the black box beside the model in the figures, the verdict against it."""
+force (real_rig.drift), the black box beside the model in the figures, the verdict against it."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from maglev_cosim import fast, rigfit
-from maglev_cosim.controllers import load_controller
+from maglev_cosim.plant import formulas
+from maglev_cosim.loop import fast_loop
+from maglev_cosim.diagnosis import real_rig
+from maglev_cosim.loop.controllers import load_controller
 from maglev_cosim.diagnosis import blackbox as bb
-from maglev_cosim.measured import Segment
+from maglev_cosim.records.measured import Segment
 from maglev_cosim.rigs import load_rig
 
 
-def _record(rig, force_pct: np.ndarray, seed: int) -> rigfit.RigRecord:
+def _record(rig, force_pct: np.ndarray, seed: int) -> real_rig.RigRecord:
     """The Inteco model under the shipped LQI, the gap stepping between 10 and 8.5 mm every second,
     with a force ``force_pct`` [% of the weight] on the ball, read through 10 um of sensor noise
     and 5 mA of current noise."""
@@ -24,11 +26,11 @@ def _record(rig, force_pct: np.ndarray, seed: int) -> rigfit.RigRecord:
     x0 = float(rig.to_x(0.010))
     i0 = rig.equilibrium_current(0.010)
     start = p.replace(x_start=x0, v_start=0.0, i_start=i0)
-    r = fast.closed_loop(start, rig.reading(gap_ref), pid=load_controller("inteco-lqi").controller,
-                         u_hold=float(fast.equilibrium_input(start.to_start_values())),
+    r = fast_loop.closed_loop(start, rig.reading(gap_ref), pid=load_controller("inteco-lqi").controller,
+                         u_hold=float(formulas.equilibrium_input(start.to_start_values())),
                          dF=force_pct / 100 * p.m_k * p.g)
     gap = rig.from_x(r["x"]) + rng.normal(0.0, 1e-5, n)
-    return rigfit.RigRecord(label=f"model {seed}", ts=1e-3, y=np.asarray(rig.reading(gap)), u=np.asarray(r["u"]),
+    return real_rig.RigRecord(label=f"model {seed}", ts=1e-3, y=np.asarray(rig.reading(gap)), u=np.asarray(r["u"]),
                             current=np.asarray(r["i"]) + rng.normal(0.0, 5e-3, n), position=gap, segment=Segment(0, n))
 
 
@@ -44,8 +46,8 @@ def test_a_planted_drift_of_the_force_is_recovered_within_its_two_sigma(planted)
     n = 8000
     force = np.linspace(0.0, planted, n)
     r = _record(rig, force, seed=int(10 + planted))
-    o = rigfit.predict(rig, r, rig.params, 0.005, noise=NOISE)
-    d = rigfit.drift(r, o["d"], o["d_sd"], rig.params.m_k * rig.params.g)
+    o = real_rig.predict(rig, r, rig.params, 0.005, noise=NOISE)
+    d = real_rig.drift(r, o["d"], o["d_sd"], rig.params.m_k * rig.params.g)
     t = np.asarray(d["t_s"])
     truth = np.interp(t, np.arange(n) * 1e-3, force)
     est, two_sigma = np.asarray(d["force_pct_weight"]), np.asarray(d["two_sigma_pct_weight"])
@@ -59,8 +61,8 @@ def test_the_figures_show_the_black_box_beside_the_model_and_the_verdict_heeds_i
     rig = load_rig("inteco-mls2em")
     train = [_record(rig, np.zeros(6000), seed=s) for s in (1, 2)]
     test = _record(rig, np.zeros(6000), seed=3)
-    boxes = {hs: bb.fit([bb.Series(r.position, r.current, r.ts) for r in train], hs) for hs in rigfit.HORIZONS_S}
-    f = rigfit.figures(rig, test, rig.params, NOISE, boxes)
+    boxes = {hs: bb.fit([bb.Series(r.position, r.current, r.ts) for r in train], hs) for hs in real_rig.HORIZONS_S}
+    f = real_rig.figures(rig, test, rig.params, NOISE, boxes)
     for h in ("5 ms", "20 ms", "50 ms"):
         sk = f["position"][h]["skill"]
         assert set(sk) >= {"model", "black_box", "constant_velocity", "model_on_position"}
@@ -70,15 +72,15 @@ def test_the_figures_show_the_black_box_beside_the_model_and_the_verdict_heeds_i
     # with a disturbance model that says the truth (no force on the ball but a trace), the model
     # of the record's own plant beats the black box at every horizon: the filter and the
     # predictions through the unstable plant cost nothing the regression does not pay too
-    exact = rigfit.figures(rig, test, rig.params, {**NOISE, "q_force": 1e-3, "f_force": 20.0}, boxes)
+    exact = real_rig.figures(rig, test, rig.params, {**NOISE, "q_force": 1e-3, "f_force": 20.0}, boxes)
     for h, v in exact["position"].items():
         assert v["skill"]["model"] > v["skill"]["black_box"] + 0.05, (h, v["skill"])
-    comp = rigfit.comparison([f], [f])
+    comp = real_rig.comparison([f], [f])
     assert comp["validation"]["20 ms"]["model"] == f["position"]["20 ms"]["skill"]["model"]
     # the rule: any horizon lost to the black box makes "explained" only "explained in part"
     won = {"segments": 1, "20 ms": {"model": 0.5, "black_box": 0.3}, "50 ms": {"model": 0.2, "black_box": 0.1}}
     lost = {"segments": 1, "20 ms": {"model": 0.5, "black_box": 0.3}, "50 ms": {"model": -0.1, "black_box": 0.4}}
-    assert rigfit.judge_against_black_box("explained", {"validation": won})[0] == "explained"
-    verdict, why = rigfit.judge_against_black_box("explained", {"calibration": won, "validation": lost})
+    assert real_rig.judge_against_black_box("explained", {"validation": won})[0] == "explained"
+    verdict, why = real_rig.judge_against_black_box("explained", {"calibration": won, "validation": lost})
     assert verdict == "explained in part" and "50 ms" in why[0] and "20 ms:" not in why[0]
-    assert rigfit.judge_against_black_box("unexplained: mechanics", {"validation": lost})[0] == "unexplained: mechanics"
+    assert real_rig.judge_against_black_box("unexplained: mechanics", {"validation": lost})[0] == "unexplained: mechanics"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglev_cosim.params import PlantParams, get_params
+from maglev_cosim.plant.params import PlantParams, get_params
 from maglev_cosim.rigs import RigError, load_rig, rig_names
 
 from real_data import REAL
@@ -51,7 +51,7 @@ def test_levitador_rig_is_eq8_with_the_benchmarks_inductance():
     # F = 1/2 dL/dy i^2 with L = k0 + k/(1 + y/a): k*a/2 * i^2/(y + a)^2
     y, i = 0.008, 1.0
     F = 0.5 * k * a * i * i / (y + a) ** 2
-    from maglev_cosim.formulas import point
+    from maglev_cosim.plant.formulas import point
 
     assert np.isclose(point(p, float(rig.to_x(y)), i).F, F, rtol=1e-12)
     assert p.L_0 == k0 and np.isclose(p.L_g, k * a)
@@ -134,7 +134,7 @@ def test_a_rig_fmu_uses_the_rig_and_passes_fmpys_checks(tmp_path):
     from fmpy import read_model_description, simulate_fmu
     from fmpy.validation import validate_fmu
 
-    from maglev_cosim import fast
+    from maglev_cosim.plant import fast
     from maglev_cosim.cli import main
 
     rig = load_rig("inteco-mls2em")

@@ -27,8 +27,8 @@ import pytest
 
 import maglev_cosim
 from maglev_cosim._resources import pid_fmu_path
-from maglev_cosim.loop import reference_signal, simulate
-from maglev_cosim.loopfmu import STOP, loop_settings
+from maglev_cosim.loop.simulate import reference_signal, simulate
+from maglev_cosim.loop.loop_fmu import STOP, loop_settings
 
 REPO = Path(__file__).resolve().parents[1]
 BUILD = REPO / "build"

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from maglev_cosim.controllers import load_controller
-from maglev_cosim.loop import simulate
+from maglev_cosim.loop.controllers import load_controller
+from maglev_cosim.loop.simulate import simulate
 from maglev_cosim.rigs import load_rig
 
 HERE = Path(__file__).resolve().parent

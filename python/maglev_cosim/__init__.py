@@ -17,31 +17,32 @@ __version__ = "0.1.0"
 
 #: public name -> module that defines it
 _API = {
-    "PlantParams": "params", "get_params": "params", "as_params": "params",
-    "PID": "pid",
-    "simulate": "loop", "LoopResponse": "loop", "reference_signal": "loop",
-    "linearize": "linear", "transfer_function": "linear", "operating_point": "linear",
-    "discrete_closed_loop": "analysis", "closed_loop_report": "analysis",
-    "FmuPlant": "fmu", "FmuError": "fmu",
-    "Record": "record", "RecordError": "record", "read_record": "record", "write_record": "record",
+    "PlantParams": "plant.params", "get_params": "plant.params", "as_params": "plant.params",
+    "PID": "loop.pid",
+    "simulate": "loop.simulate", "LoopResponse": "loop.simulate", "reference_signal": "loop.simulate",
+    "linearize": "plant.linear", "transfer_function": "plant.linear", "operating_point": "plant.linear",
+    "discrete_closed_loop": "loop.design", "closed_loop_report": "loop.design",
+    "FmuPlant": "loop.fmu", "FmuError": "loop.fmu",
+    "Record": "records.record", "RecordError": "records.record", "read_record": "records.record",
+    "write_record": "records.record",
     "diagnose": "diagnosis", "Diagnosis": "diagnosis", "CATALOGUE": "diagnosis",
-    "nrmse_fit": "metrics", "resid": "metrics",
+    "nrmse_fit": "diagnosis.metrics", "resid": "diagnosis.metrics",
     "fmu_path": "_resources",
 }
 
 __all__ = sorted(_API) + ["__version__"]
 
 if TYPE_CHECKING:
-    from .analysis import closed_loop_report, discrete_closed_loop
+    from .loop.design import closed_loop_report, discrete_closed_loop
     from .diagnosis import CATALOGUE, Diagnosis, diagnose
-    from .fmu import FmuError, FmuPlant
-    from .linear import linearize, operating_point, transfer_function
-    from .loop import LoopResponse, reference_signal, simulate
-    from .metrics import nrmse_fit, resid
-    from .params import PlantParams, as_params, get_params
+    from .loop.fmu import FmuError, FmuPlant
+    from .plant.linear import linearize, operating_point, transfer_function
+    from .loop.simulate import LoopResponse, reference_signal, simulate
+    from .diagnosis.metrics import nrmse_fit, resid
+    from .plant.params import PlantParams, as_params, get_params
     from ._resources import fmu_path
-    from .pid import PID
-    from .record import Record, RecordError, read_record, write_record
+    from .loop.pid import PID
+    from .records.record import Record, RecordError, read_record, write_record
 
 
 def __getattr__(name: str) -> Any:

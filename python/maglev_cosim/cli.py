@@ -12,7 +12,32 @@ import sys
 import time
 from pathlib import Path
 
+import control
 import numpy as np
+
+# Imported inside functions, on purpose: matplotlib (heavy, only `step` plots).
+from . import __version__
+from .diagnosis import CATALOGUE, diagnose, real_rig
+from .diagnosis.effects import DEFAULT_EFFECTS
+from .diagnosis.identify import PAPER, identify
+from .diagnosis.replay import baseline_params
+from .loop.controllers import ControllerError, load_controller
+from .loop.design import closed_loop_report, plot_closed_loop_bode, plot_root_locus
+from .loop.fmu import FmuError, ensure_fmu
+from .loop.pid import PID
+from .loop.simulate import reference_signal, simulate
+from .plant.calibrated_fmu import calibrated_fmu
+from .plant.fast import param_table
+from .plant.formulas import point
+from .plant.linear import linearize, operating_point, transfer_function
+from .plant.params import as_params, set_label
+from .records import emulator_ivp
+from .records.measured import MEASURED_FORMATS, read_measured, sniff
+from .records.record import RecordError, read_record
+from .records.synth import parse_effect_spec, synth_record
+from .report.bench import run_bench
+from .report.diagnosis_report import write_report
+from .rigs import SHIPPED, load_rig
 
 
 class CliError(Exception):
@@ -90,17 +115,7 @@ def cmd_step(a: argparse.Namespace) -> dict:
     import matplotlib
 
     matplotlib.use("Agg")
-    import control
     import matplotlib.pyplot as plt
-
-    from .linear import operating_point
-    from .loop import reference_signal, simulate
-    from .params import as_params, set_label
-    from .pid import PID
-
-    from .fmu import ensure_fmu
-
-    from .formulas import point
 
     out = Path(a.out)
     p = as_params(a.params)
@@ -175,8 +190,6 @@ def cmd_step(a: argparse.Namespace) -> dict:
 
 def op_slope(p, x: float) -> tuple[float, float]:
     """The reading's slope [MU/m] and value [MU] at ``x`` [m] (Eq. 12, 13)."""
-    from .formulas import point
-
     pt = point(p, x)
     return pt.dy_dx, pt.y
 
@@ -184,11 +197,6 @@ def op_slope(p, x: float) -> tuple[float, float]:
 # ----------------------------------------------------------------------------- linearize
 
 def cmd_linearize(a: argparse.Namespace) -> dict:
-    from .analysis import closed_loop_report, plot_closed_loop_bode, plot_root_locus
-    from .linear import linearize, operating_point, transfer_function
-    from .params import as_params
-    from .pid import PID
-
     p = as_params(a.params)
     _check_position(a.position, p)
     op = operating_point(p, a.position)
@@ -252,8 +260,6 @@ def _jsonable(o):
 # ----------------------------------------------------------------------------- bench
 
 def cmd_bench(a: argparse.Namespace) -> dict:
-    from .bench import run_bench
-
     res = run_bench(fmu=a.fmu, record_seconds=a.duration, diagnose=not a.no_diagnose, json_path=a.json)
     if a.json:
         print(f"wrote {a.json}")
@@ -263,8 +269,6 @@ def cmd_bench(a: argparse.Namespace) -> dict:
 # ----------------------------------------------------------------------------- records
 
 def _load(path: str, implausible: bool = False):
-    from .record import read_record
-
     rec = read_record(path, plausibility="warn" if implausible else "refuse")
     for w in rec.warnings:
         print(f"warning: {path}: {w}", file=sys.stderr)
@@ -274,8 +278,6 @@ def _load(path: str, implausible: bool = False):
 def _is_measured(path: str) -> bool:
     """A real rig's published record (an Inteco .mat, a levitador text, a text record that declares
     its columns) rather than the CE152 record format; told from the content (``measured.sniff``)."""
-    from .measured import MEASURED_FORMATS, sniff
-
     fmt = sniff(path)
     return fmt in MEASURED_FORMATS or (fmt is None and Path(path).suffix.lower() == ".mat")
 
@@ -288,9 +290,6 @@ def _likely_rig(path: str) -> str:
     """``"; likely --rig NAME (...)"`` when exactly one shipped real rig fits the record's sample time
     and travel (most positions between its stops), else ``""``. Reads the record (cheap); a record
     that cannot be read gets ``""`` and its error comes later."""
-    from .measured import read_measured
-    from .rigs import SHIPPED, load_rig
-
     try:
         m = read_measured(path)
     except Exception:  # the read error itself is reported where the record is used
@@ -316,8 +315,6 @@ def _check_rig_records(paths, rig: str | None, require=(), resample: bool = Fals
     record given a real rig, a real rig's record given none or ``ce152``; then reads each real
     record once, so that a missing column (``require``: the drive, the reference of a declared
     controller) is refused before anything runs."""
-    from .measured import read_measured, sniff
-
     for path in paths:
         fmt = sniff(path)
         if fmt == "ce152" and rig not in (None, "ce152"):
@@ -378,10 +375,6 @@ def _print_rig_result(res: dict) -> None:
 
 
 def cmd_fmu(a: argparse.Namespace) -> dict:
-    from .fmu import ensure_fmu
-    from .report import calibrated_fmu
-    from .rigs import load_rig
-
     rig = load_rig(a.rig)
     params = rig.params
     if a.calibration:
@@ -403,13 +396,10 @@ def cmd_fmu(a: argparse.Namespace) -> dict:
 
 
 def cmd_calibrate(a: argparse.Namespace) -> dict:
-    from .rigfit import run
-    from .rigs import load_rig
-
     rig = load_rig(a.rig)
     _check_rig_records([*a.records, *(a.validate or ())], a.rig,
                        require=("drive", "reference") if a.controller else ("drive",), resample=a.resample)
-    res = run(rig, a.records, a.out, validate=a.validate or (), resample=a.resample, progress=_progress,
+    res = real_rig.run(rig, a.records, a.out, validate=a.validate or (), resample=a.resample, progress=_progress,
               controller=_controller_file(a, rig))
     _print_rig_result(res)
     return res
@@ -419,7 +409,6 @@ def _controller_file(a: argparse.Namespace, rig):
     """The declared controller of --controller, read and checked before anything runs."""
     if not getattr(a, "controller", None):
         return None
-    from .controllers import ControllerError, load_controller
 
     try:
         return load_controller(a.controller, rig)
@@ -428,18 +417,11 @@ def _controller_file(a: argparse.Namespace, rig):
 
 
 def cmd_diagnose(a: argparse.Namespace) -> dict:
-    from .diagnosis import diagnose
-    from .fmu import ensure_fmu
-    from .report import write_report
-
     if a.rig not in (None, "ce152") or _is_measured(a.record):
-        from .rigfit import run
-        from .rigs import load_rig
-
         rig = load_rig(a.rig) if a.rig not in (None, "ce152") else None
         _check_rig_records([a.record], a.rig, require=("drive", "reference") if a.controller else ("drive",),
                            resample=a.resample)
-        res = run(rig, [a.record], a.out, resample=a.resample, per_record=False, progress=_progress,
+        res = real_rig.run(rig, [a.record], a.out, resample=a.resample, per_record=False, progress=_progress,
                   json_name="diagnosis.json", controller=_controller_file(a, rig))
         _print_rig_result(res)
         return res
@@ -461,8 +443,6 @@ def cmd_diagnose(a: argparse.Namespace) -> dict:
     print(f"before: rms_y {d.before['rms_y']:.6f} MU, rms_u {d.before['rms_u']:.6f} MU")
     print(f"after:  rms_y {d.after['rms_y']:.6f} MU, rms_u {d.after['rms_u']:.6f} MU")
     for e in d.selected:
-        from .diagnosis import CATALOGUE
-
         for p in CATALOGUE[e].params:
             print(f"  {p} = {d.parameters[p]:.6g} ± {d.uncertainties.get(p, float('nan')):.2g}")
     print("wrote " + ", ".join(str(p) for p in written.values()))
@@ -470,9 +450,6 @@ def cmd_diagnose(a: argparse.Namespace) -> dict:
 
 
 def cmd_identify(a: argparse.Namespace) -> dict:
-    from .identify import PAPER, identify
-    from .replay import baseline_params
-
     rec = _load(a.record)
     res = identify(rec, baseline_params(), with_simplex=not a.no_simplex)
     print(f"{len(res['points']['x'])} equilibrium points from {a.record}")
@@ -490,8 +467,6 @@ def cmd_identify(a: argparse.Namespace) -> dict:
 
 
 def cmd_synth(a: argparse.Namespace) -> dict:
-    from .synth import parse_effect_spec, synth_record
-
     effects: dict[str, dict[str, float]] = {}
     for spec in a.effect or []:
         name, values = parse_effect_spec(spec)
@@ -515,14 +490,12 @@ def cmd_synth(a: argparse.Namespace) -> dict:
             settings[k] = v if k == "method" else float(v)      # f_y = inf: white sensor noise
         except ValueError:
             raise CliError(f"--setting {spec!r}: {v!r} is not a number") from None
-    kw = {}
+    kw, write = {}, synth_record
     if a.emulator == "ivp":
-        from .emulator_ivp import synth_record  # noqa: F811 (the independent emulator, same arguments)
-
-        kw = {"settings": settings}
+        kw, write = {"settings": settings}, emulator_ivp.synth_record   # the independent emulator, same arguments
     _progress(f"synthesising {a.duration} s ({a.reference}) with effects {effects or 'none'} "
               f"({'the independent emulator' if a.emulator == 'ivp' else 'the rig emulator'})")
-    path = synth_record(Path(a.out), effects=effects, reference=a.reference, duration=a.duration, seed=a.seed,
+    path = write(Path(a.out), effects=effects, reference=a.reference, duration=a.duration, seed=a.seed,
                         noise=not a.no_noise, params=params or None, period=a.period, **kw)
     print(f"wrote {path}")
     return {"record": str(path)}
@@ -531,9 +504,6 @@ def cmd_synth(a: argparse.Namespace) -> dict:
 # ----------------------------------------------------------------------------- demo
 
 def cmd_demo(a: argparse.Namespace) -> dict:
-    from .fmu import ensure_fmu
-    from .params import set_label
-
     out = Path(a.out)
     fmu = ensure_fmu(None)
     _progress(f"FMU: {fmu}")
@@ -559,8 +529,6 @@ def cmd_demo(a: argparse.Namespace) -> dict:
 
 def _truth_table(truth: dict, d: dict) -> str:
     """The planted effects of a synthetic record beside what the diagnosis estimated."""
-    from .fast import param_table
-
     units = {n: row[3] for n, row in param_table().items()}
     rows = [f"{'effect':<22}{'parameter':<11}{'planted':>12}{'estimated':>12}{'± 1 sigma':>12}  unit"]
     for name, values in truth["effects"].items():
@@ -581,8 +549,7 @@ def _truth_table(truth: dict, d: dict) -> str:
 class _Parser(argparse.ArgumentParser):
     """argparse with its errors in one line (no usage dump), like every other failure here."""
 
-    #: Builds the epilog when help is shown: the effect catalogue imports the diagnosis (scipy,
-    #: python-control), which every other command need not pay for at start-up.
+    #: Builds the epilog (the effect catalogue with its parameters' units) when help is shown.
     lazy_epilog = None
 
     def error(self, message: str) -> None:  # type: ignore[override]
@@ -606,11 +573,6 @@ EXAMPLES = """examples:
 
 
 def _catalogue_help() -> str:
-    from .diagnosis import CATALOGUE
-    from .fast import param_table
-
-    from .diagnosis.effects import DEFAULT_EFFECTS
-
     lines = ["effect catalogue (name: FMU parameters [unit], what it models; * = opt-in with --effects):"]
     table = param_table()
     for e in CATALOGUE.values():
@@ -621,8 +583,6 @@ def _catalogue_help() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
-
     fmt = argparse.RawDescriptionHelpFormatter
     ap = _Parser(prog="maglev-cosim", formatter_class=fmt,
                  description="The Humusoft CE152 magnetic levitation rig as an FMI co-simulation FMU, and a "
@@ -745,8 +705,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0, help="random seed of the noise and the staircase (default 0)")
     s.add_argument("--no-noise", action="store_true", help="no sensor noise, random force or quantisation")
     s.add_argument("--emulator", choices=["rig", "ivp"], default="rig",
-                   help="rig: maglev_cosim.rig (default); ivp: the independent emulator written from the paper "
-                        "(maglev_cosim.emulator_ivp: solve_ivp, coloured sensor noise, the PID's output 0.3 of a "
+                   help="rig: maglev_cosim.records.emulator (default); ivp: the independent emulator written from the paper "
+                        "(maglev_cosim.records.emulator_ivp: solve_ivp, coloured sensor noise, the PID's output 0.3 of a "
                         "sample late; effects amplifier_lag, force_lag, delay, sensor_nonlinearity, "
                         "current_saturation, periodic_disturbance, coulomb_friction)")
     s.add_argument("--setting", action="append", metavar="NAME=VALUE",
@@ -771,8 +731,6 @@ def main(argv: list[str] | None = None) -> int:
         print("maglev-cosim: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # one line, no traceback
-        from .fmu import FmuError
-        from .record import RecordError
 
         kind = "" if isinstance(exc, (CliError, FmuError, RecordError, ValueError, FileNotFoundError)) \
             else f"{type(exc).__name__}: "

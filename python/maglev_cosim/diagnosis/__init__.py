@@ -6,7 +6,12 @@ effect the model lacks, add it, and report the error before and after.
 - :mod:`.residual`: describing a residual, and the noise floor of a record;
 - :mod:`.acceptance`: the held-out likelihood-ratio test;
 - :mod:`.verdict`: free-run and k-step prediction fits, the innovations' predictable share, the verdict;
-- :mod:`.pipeline`: the stages and :func:`diagnose`.
+- :mod:`.pipeline`: the stages and :func:`diagnose`;
+- :mod:`.replay`: a record replayed through the model (the loop the record ran, its noise);
+- :mod:`.metrics`: fit figures (NRMSE, residuals, spectra);
+- :mod:`.identify`: the paper's static identification (Eq. 14, the simplex fit);
+- :mod:`.real_rig`: a real rig's records: calibration, validation, the black-box comparison, its report;
+- :mod:`.blackbox`, :mod:`.locate`: the black-box benchmark models; where in the loop a residual comes from.
 """
 
 from .acceptance import CRITERION, accept

@@ -10,44 +10,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .residual import spectral_peaks
-
-if TYPE_CHECKING:
-    from .problem import Problem
-
-
-@dataclass(frozen=True)
-class Coord:
-    """One fit coordinate: name, scale (a typical size, so the solver sees order 1) and bounds."""
-
-    name: str
-    scale: float
-    lo: float
-    hi: float
-
-
-class Parameterization:
-    """A set of FMU parameters fitted in coordinates ``coords`` (the identity map by default)."""
-
-    params: tuple[str, ...] = ()
-    coords: tuple[Coord, ...] = ()
-
-    def to_params(self, z: Sequence[float]) -> dict[str, float]:
-        """Parameter values [SI units] from coordinates ``z``."""
-        return {c.name: float(v) for c, v in zip(self.coords, z)}
-
-    def to_coords(self, values: Mapping[str, float]) -> list[float]:
-        """Coordinates of parameter values."""
-        return [float(values[c.name]) for c in self.coords]
-
-    def uncertainty_scales(self) -> dict[str, float]:
-        """A step size per FMU parameter for Jacobians of the parameters themselves."""
-        return {c.name: c.scale for c in self.coords}
+from ..plant.formulas import positions
+from .problem import Coord, Parameterization, Problem, fit, residuals
+from .residual import effective_samples, spectral_peaks
 
 
 class Baseline(Parameterization):
@@ -89,6 +57,11 @@ class Effect(Parameterization):
         credited with a gain, which then comes from elsewhere (the baseline's recalibration, or
         in prediction mode the filter's extra state)."""
         return False
+
+    def consistent(self, prob: Problem, values: Mapping[str, float]) -> tuple[bool, dict]:
+        """Whether the fitted effect is what it claims to be beyond its held-out gain (checks an
+        effect's own signature; none by default): ``(ok, evidence)``."""
+        return True, {}
 
 
 class _TimeConstant(Effect):
@@ -232,8 +205,6 @@ class PeriodicDisturbance(Effect):
         pickup is nearly linear in (a, b), so two replays with a 1 mV pickup in cosine and sine
         phase give a linear least-squares estimate, which a short nonlinear fit then polishes.
         (A trust-region fit started from the phase grid alone can stall at a = b = 0.)"""
-        from .problem import fit, residuals
-
         fixed = prob.with_base({**current, "f_d": z[2]})
         a0, b0 = (float(v) for v in self.to_coords({"A_d": current.get("A_d", 0.0),
                                                     "phi_d": current.get("phi_d", 0.0), "f_d": z[2]})[:2])
@@ -250,6 +221,160 @@ class PeriodicDisturbance(Effect):
         start = lin if cost(lin) < cost(z[:2]) else list(z[:2])
         pre = fit(fixed, [_AmplitudePhase()], [start], max_nfev=20)
         return self.to_coords({**pre.values, "f_d": z[2]})[:2] + [z[2]]
+
+
+    def consistent(self, prob: Problem, values: Mapping[str, float]) -> tuple[bool, dict]:
+        """A pickup keeps its amplitude and frequency through the record, and is no harmonic of the
+        reference's: :func:`periodic_evidence`."""
+        return periodic_evidence(prob, values)
+
+
+#: Probability with which a steady pickup is rejected by the block test (chi-square).
+PERIODIC_ALPHA = 1e-3
+#: Smallest disagreement between blocks that counts, whatever its significance: a relative amplitude
+#: change or a phase change [rad] (the loop's response to a pickup changes a little with the
+#: operating point, which the model follows only to its accuracy).
+PERIODIC_MIN_AMPLITUDE_SPREAD = 0.3
+PERIODIC_MIN_PHASE_SPREAD = 0.3
+#: Block length [s] of the block test: two fit/held-out blocks (at least 2 blocks in all).
+PERIODIC_BLOCK = 1.6
+#: Neighbouring harmonics a reference's comb must show (amplitude over the local spectral level), and
+#: their smallest share of the line at the pickup's frequency.
+COMB_PROMINENCE = 3.0
+COMB_SHARE = 0.3
+
+
+def reference_periods(w: np.ndarray, ts: float) -> list[float]:
+    """The reference's period [s] when it repeats (a square, a sine: the first lag at which its
+    autocorrelation exceeds 0.95), and the interval between its steps when they are equally
+    spaced (within two samples); empty for a staircase of random steps."""
+    out: list[float] = []
+    n = len(w)
+    x = np.asarray(w, float) - float(np.mean(w))
+    if n > 16 and np.any(x):
+        f = np.fft.rfft(x, 2 * n)
+        ac = np.fft.irfft(f * np.conj(f))[:n // 2]
+        ac = ac / ac[0] * n / (n - np.arange(n // 2))     # unbiased: each lag over its overlap
+        lo = max(int(0.05 / ts), 2)
+        # the first peak above 0.95 after the autocorrelation has fallen below 0.5
+        below = np.nonzero(ac[lo:] < 0.5)[0]
+        if len(below):
+            k0 = lo + int(below[0])
+            above = np.nonzero(ac[k0:] > 0.95)[0]
+            if len(above):
+                k = k0 + int(above[0])
+                k = k + int(np.argmax(ac[k:k + max(k // 10, 2)]))
+                out.append(k * ts)
+    steps = np.nonzero(np.abs(np.diff(w)) > 1e-9)[0]
+    if len(steps) >= 3:
+        gaps = np.diff(steps)
+        if np.ptp(gaps) <= 2:
+            out.append(float(np.mean(gaps)) * ts)
+    return out
+
+
+def _amplitude_at(r: np.ndarray, ts: float, freqs: Sequence[float]) -> np.ndarray:
+    """Hann-windowed DFT amplitude of ``r`` at the frequencies ``freqs`` [Hz]."""
+    n = len(r)
+    win = np.hanning(n)
+    t = np.arange(n) * ts
+    rw = (r - np.mean(r)) * win
+    return np.array([abs(np.dot(rw, np.exp(-2j * np.pi * f * t))) * 2 / win.sum() for f in freqs])
+
+
+def periodic_evidence(prob: Problem, values: Mapping[str, float]) -> tuple[bool, dict]:
+    """Whether a fitted pickup is one: a sinusoid of the same amplitude and frequency in every
+    block of the record, not a harmonic of the reference.
+
+    **Blocks.** The loop's response to the fitted pickup, in cosine and in sine phase (replays with
+    and without it), is fitted to what the model without it leaves, block by block
+    (:data:`PERIODIC_BLOCK`): a gain ``c_k`` and a phase ``φ_k`` per block with their standard
+    errors (least squares, inflated for the residual's autocorrelation). A steady pickup gives the
+    same ``(c, φ)`` in every block; a frequency off by ``δf`` turns the phase by ``2π·δf`` per
+    second. The pickup is rejected when the blocks disagree beyond their uncertainty (chi-square at
+    1 − :data:`PERIODIC_ALPHA`) *and* by more than :data:`PERIODIC_MIN_AMPLITUDE_SPREAD` in
+    relative amplitude or :data:`PERIODIC_MIN_PHASE_SPREAD` rad in phase.
+
+    **Harmonics.** When the reference repeats (:func:`reference_periods`) and the frequency lies
+    within half a bin (``0.5/T``) of a harmonic ``n/P``, the pickup is rejected if the residual of
+    the model without it shows the reference's comb: a neighbouring harmonic (``n ± 1``, ``n ± 2``)
+    standing :data:`COMB_PROMINENCE` times above the spectrum between harmonics and at least
+    :data:`COMB_SHARE` of the line at ``n``. A pure tone that happens to sit on a harmonic (mains at
+    50 Hz under a 0.6 s square) towers over the comb and stays."""
+    from scipy.stats import chi2
+
+
+    rec = prob.rec
+    vals = {**values}
+    A, phi, f = float(vals["A_d"]), float(vals["phi_d"]), float(vals["f_d"])
+    s1 = prob.free_run(vals)
+    s0 = prob.free_run({**vals, "A_d": 0.0})
+    sq = prob.free_run({**vals, "phi_d": phi + math.pi / 2})
+    parts = []
+    for sig, sigma in (("y", prob.sigma_y), ("u", prob.sigma_u)):
+        parts.append(((getattr(rec, sig) - s0[sig]) / sigma, (s1[sig] - s0[sig]) / sigma, (sq[sig] - s0[sig]) / sigma))
+    nblk = max(2, int(rec.duration // PERIODIC_BLOCK))
+    edges = np.linspace(0, rec.n, nblk + 1).astype(int)
+    est, covs = [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        r = np.concatenate([p[0][a:b] for p in parts])
+        G = np.column_stack([np.concatenate([p[1][a:b] for p in parts]), np.concatenate([p[2][a:b] for p in parts])])
+        gg = G.T @ G
+        if not np.all(np.isfinite(gg)) or np.linalg.cond(gg) > 1e12:
+            return True, {"blocks": [], "note": "the pickup's response is too small to fit per block"}
+        coef = np.linalg.solve(gg, G.T @ r)
+        e = r - G @ coef
+        m = b - a
+        n_eff = min(effective_samples(e[:m]), effective_samples(e[m:]))
+        s2 = float(np.sum(e ** 2)) / max(len(e) - 2, 1)
+        est.append(coef)
+        covs.append(np.linalg.inv(gg) * s2 * m / max(n_eff, 1.0))
+    est_a = np.array(est)
+    W = [np.linalg.inv(c) for c in covs]
+    mean = np.linalg.solve(sum(W), sum(w_ @ p for w_, p in zip(W, est_a)))
+    stat = float(sum((p - mean) @ w_ @ (p - mean) for w_, p in zip(W, est_a)))
+    threshold = float(chi2.ppf(1 - PERIODIC_ALPHA, 2 * (nblk - 1)))
+    amp = np.hypot(est_a[:, 0], est_a[:, 1])          # per block, relative to the fitted amplitude
+    ph = np.arctan2(est_a[:, 1], est_a[:, 0])
+    a_mean = float(np.hypot(*mean))
+    ph_mean = float(np.arctan2(mean[1], mean[0]))
+    amp_spread = float(np.max(np.abs(amp - a_mean)) / a_mean) if a_mean > 0 else math.inf
+    ph_spread = float(np.max(np.abs(np.angle(np.exp(1j * (ph - ph_mean))))))
+    centres = rec.ts * (edges[:-1] + edges[1:]) / 2
+    drift = float(np.polyfit(centres, np.unwrap(ph), 1)[0] / (2 * np.pi))    # Hz: a frequency off by this much
+    unsteady = stat > threshold and (amp_spread > PERIODIC_MIN_AMPLITUDE_SPREAD or ph_spread > PERIODIC_MIN_PHASE_SPREAD)
+    out = {"blocks": [{"t0_s": float(rec.ts * a), "t1_s": float(rec.ts * b), "A_d": float(A * amp[k]),
+                       "phase_rad": float(ph[k])}
+                      for k, (a, b) in enumerate(zip(edges[:-1], edges[1:]))],
+           "block_statistic": stat, "block_threshold": threshold, "amplitude_spread": amp_spread,
+           "phase_spread_rad": ph_spread, "frequency_drift_Hz": drift, "unsteady": bool(unsteady)}
+    # harmonics of the reference
+    harmonic = None
+    tol = 0.5 / rec.duration
+    for period in reference_periods(rec.w, rec.ts):
+        f0 = 1.0 / period
+        nh = int(round(f / f0))
+        if nh < 1 or abs(f - nh * f0) > tol:
+            continue
+        r = parts[1][0] * prob.sigma_u           # what the model without the pickup leaves in u
+        ry = parts[0][0] * prob.sigma_y
+        comb = False
+        for sig in (r, ry):
+            nb = [k for k in (nh - 2, nh - 1, nh + 1, nh + 2) if k >= 1]
+            lines = _amplitude_at(sig, rec.ts, [k * f0 for k in nb])
+            line = float(_amplitude_at(sig, rec.ts, [nh * f0])[0])
+            between = _amplitude_at(sig, rec.ts, [(k + dk) * f0 for k in range(max(nh - 3, 1), nh + 3)
+                                                  for dk in (0.3, 0.5, 0.7)])
+            level = float(np.median(between)) + 1e-300
+            # the line is one tooth of the reference's comb: its neighbours stand out of the spectrum
+            # and come within COMB_SHARE of it (a pickup's line towers over the comb it sits in)
+            comb = comb or bool(np.any((lines > COMB_PROMINENCE * level) & (lines > COMB_SHARE * line)))
+        harmonic = {"period_s": period, "harmonic": nh, "comb": comb}
+        if comb:
+            break
+    out["reference_harmonic"] = harmonic
+    ok = not unsteady and not (harmonic and harmonic["comb"])
+    return ok, out
 
 
 class _AmplitudePhase(Parameterization):
@@ -304,7 +429,6 @@ class ForceExponent(Effect):
 
     def start_values(self, z: Sequence[float], prob: Problem, current: Mapping[str, float]) -> dict[str, float]:
         vals = super().start_values(z, prob, current)
-        from ..formulas import positions
 
         x = positions({k: v for k, v in current.items() if k in prob.base}, prob.rec.y)
         vals["x_n"] = float(min(np.mean(x), current["x_0"] - 1e-4))

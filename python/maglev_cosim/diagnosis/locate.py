@@ -16,7 +16,7 @@ Each correction has two forms: a *static nonlinearity*, a smooth cubic spline of
 filter*, ``sum_l a_l*(s[k-l] - s[k])`` over a few lags ``l`` of the local signal ``s`` (a lag,
 a delay or a lead all have this form to first order); at the mechanics the filter also has a term
 in the ball's velocity (damping). Each basis signal is injected into the model's closed loop
-(:func:`maglev_cosim.replay.replay_injected`, the C plant) to get its effect on y and u, so the
+(:func:`maglev_cosim.diagnosis.replay.replay_injected`, the C plant) to get its effect on y and u, so the
 loop's feedback is accounted for exactly to first order; the coefficients are then a ridge
 least-squares fit of the residual (y and u, each over its noise level) on the fit blocks. The
 held-out gain is the share of the held-out residual energy the correction removes.
@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.interpolate import BSpline
 
-from ..record import Record
-from ..replay import replay, replay_injected
+from ..records.record import Record
+from .replay import replay, replay_injected
 
 LOCATIONS = ("actuator", "mechanics", "sensor")
 #: Interior knots of the splines (cubic: knots + 4 coefficients).

@@ -24,14 +24,15 @@ from multiprocessing import get_context
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ..record import Record
-from ..metrics import nrmse_fit
-from ..replay import HORIZON_S, baseline_params, estimate_noise
+from ..records.record import Record
 from .acceptance import BLOCK, CRITERION, accept
-from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, Parameterization, twin_warnings
-from .verdict import Verdict, conclude, on_bounds
-from .problem import Problem, cost_on, fit, residuals
+from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
+from .identify import equilibrium_points, least_squares_eq14
+from .metrics import nrmse_fit
+from .problem import Parameterization, Problem, cost_on, fit, residuals
+from .replay import HORIZON_S, baseline_params, estimate_noise
 from .residual import analyse_residual, effective_samples, noise_floor
+from .verdict import Verdict, conclude, on_bounds
 
 MAX_EFFECTS = 3
 
@@ -95,7 +96,8 @@ class Diagnosis:
             "elapsed_s": self.elapsed,
             **({"noise_model": self.verdict.noise.to_json(), "noise_model_before": self.verdict.noise_before.to_json(),
                 "innovations_predictable_share": self.verdict.predictable_share,
-                "location_evidence": self.verdict.location_evidence} if self.verdict else {}),
+                "location_evidence": self.verdict.location_evidence,
+                "noise_floor_rule": self.verdict.noise_floor} if self.verdict else {}),
         }
 
 
@@ -115,8 +117,6 @@ FREE_RUN_MIN_FIT = 90.0
 def static_start(rec: Record, base: dict[str, float], say: Say) -> dict[str, float]:
     """Starting values of k_c and x_0 from the paper's least-squares fit of Eq. 14 on the record's
     settled segments (Sec. 3.4.2), when it has them and they lie inside the calibration bounds."""
-    from ..identify import equilibrium_points, least_squares_eq14
-
     try:
         x, u_v = equilibrium_points(rec, base)
         lq = least_squares_eq14(x, u_v, base["m_k"], base["g"])
@@ -233,6 +233,14 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
     if eff.is_off(vals):
         ok = False
         stats = {**stats, "off": True}
+    if ok:
+        # the effect's own signature (a pickup steady through the record, no harmonic of the reference)
+        steady, evidence = eff.consistent(prob, vals)
+        if evidence:
+            stats = {**stats, "consistency": evidence}
+        if not steady:
+            ok = False
+            stats = {**stats, "inconsistent": True}
     errs = rms(prob.rec, prob.free_run(vals))
     entry = {"effect": res["effect"], "round": rnd, "parameters": {p: vals[p] for p in eff.params}, **errs,
              "accepted": ok, "held_out_cost_before": hold_before, "held_out_cost_after": hold_after, **stats,

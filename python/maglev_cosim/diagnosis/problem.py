@@ -5,21 +5,46 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..record import Record
-from ..replay import HORIZON_S, NoiseModel, horizon_samples, predict, replay
-
-if TYPE_CHECKING:
-    from .effects import Parameterization
+from ..records.record import Record
+from .replay import HORIZON_S, NoiseModel, horizon_samples, predict, replay
 
 #: Largest RK4 substep [s] of the replays the fits run. Against the default 0.1 ms, on a 12 s record
 #: with each catalogue lag, delay or exponent: at most 1.7e-8 MU in y and 2.1e-7 MU in u (a
 #: thousandth of the sensor noise and of u's noise response), and each replay 1.7 times faster.
 FIT_SOLVER_STEP = 2.5e-4
+
+
+@dataclass(frozen=True)
+class Coord:
+    """One fit coordinate: name, scale (a typical size, so the solver sees order 1) and bounds."""
+
+    name: str
+    scale: float
+    lo: float
+    hi: float
+
+
+class Parameterization:
+    """A set of FMU parameters fitted in coordinates ``coords`` (the identity map by default)."""
+
+    params: tuple[str, ...] = ()
+    coords: tuple[Coord, ...] = ()
+
+    def to_params(self, z: Sequence[float]) -> dict[str, float]:
+        """Parameter values [SI units] from coordinates ``z``."""
+        return {c.name: float(v) for c, v in zip(self.coords, z)}
+
+    def to_coords(self, values: Mapping[str, float]) -> list[float]:
+        """Coordinates of parameter values."""
+        return [float(values[c.name]) for c in self.coords]
+
+    def uncertainty_scales(self) -> dict[str, float]:
+        """A step size per FMU parameter for Jacobians of the parameters themselves."""
+        return {c.name: c.scale for c in self.coords}
 
 
 @dataclass

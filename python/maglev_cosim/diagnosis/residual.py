@@ -8,7 +8,12 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..record import Record
+from ..loop import fast_loop
+from ..loop.controllers import needs_current
+from ..plant import formulas
+from ..plant.params import get_params
+from ..records.record import Record
+from .replay import record_controller
 
 
 def effective_samples(r: np.ndarray, max_lag: int = 2000) -> float:
@@ -128,11 +133,6 @@ def noise_floor(rec: Record) -> dict[str, float]:
 def _controller_noise_gain(rec: Record, n: int = 4000) -> float:
     """RMS change of the declared controller's output per unit RMS of white noise on its reading,
     around the record's mean operating point (a small noise, so the limits do not act)."""
-    from .. import fast, formulas
-    from ..controllers import needs_current
-    from ..params import get_params
-    from ..replay import record_controller
-
     c = record_controller(rec)
     p = get_params("baseline")
     y0 = float(np.mean(rec.y))
@@ -142,6 +142,6 @@ def _controller_noise_gain(rec: Record, n: int = 4000) -> float:
     noise = level * np.random.default_rng(0).standard_normal(n)
     w = np.full(n, y0)
     cur = np.full(n, op.i) if needs_current(c) else None
-    u0 = fast.control(c, w, w, cur, op.u, (x0, 0.0, op.i))
-    u1 = fast.control(c, w, w + noise, cur, op.u, (x0, 0.0, op.i))
+    u0 = fast_loop.control(c, w, w, cur, op.u, (x0, 0.0, op.i))
+    u1 = fast_loop.control(c, w, w + noise, cur, op.u, (x0, 0.0, op.i))
     return float(np.std(u1 - u0) / level)

@@ -10,7 +10,7 @@ position the rig's own software already computed, with its calibration table) an
 and the sample time. ``[sources]`` names where each value comes from.
 
 Shipped: ``ce152`` (the paper's Section 3, the default everywhere; it maps exactly onto
-:data:`maglev_cosim.params.PARAMETER_SETS` ``"section3"``), ``inteco-mls2em`` and ``levitador``
+:data:`maglev_cosim.plant.params.PARAMETER_SETS` ``"section3"``), ``inteco-mls2em`` and ``levitador``
 (from the identification data of the shared real records). The equations stay in C: a rig is only
 a set of plant parameters (:attr:`Rig.params`) and the maps between the record's signals and the
 plant's (positions, actuator input, reading).
@@ -29,7 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from ..params import PlantParams
+from ..plant.formulas import point, positions
+from ..plant.params import PlantParams
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -93,21 +94,15 @@ class Rig:
     def reading(self, position):
         """The plant's noise-free reading ``y`` [MU] for record positions [m] (a ``position`` sensor:
         ``x / position_scale``; otherwise Eq. 12, 13 with the rig's sensor)."""
-        from ..formulas import point
-
         x = np.atleast_1d(self.to_x(position))
         return np.array([point(self.params, float(xk)).y for xk in x.ravel()]).reshape(x.shape)
 
     def position_for_reading(self, y):
         """Record positions [m] for plant readings ``y`` [MU] (the sensor's inverse, Eq. 12, 13)."""
-        from ..formulas import positions
-
         return self.from_x(positions(self.params, y))
 
     def equilibrium_current(self, position: float) -> float:
         """The current [A] holding the ball at rest at a record position [m]."""
-        from ..formulas import point
-
         return point(self.params, float(self.to_x(position))).i
 
 

@@ -8,7 +8,7 @@ One controller type for the loop layer, :data:`Controller`: each reads, at ``t_k
 the same equations for the FMU and reference backends, and ``tests/test_controllers.py``
 cross-checks the two.
 
-- :class:`~maglev_cosim.pid.PID`: the paper's discrete PID (Eq. 24/25), derivative filter and
+- :class:`~maglev_cosim.loop.pid.PID`: the paper's discrete PID (Eq. 24/25), derivative filter and
   anti-windup (conditional integration or clamping).
 - :class:`Cascade`: a position PID giving the current reference [A], and a current PID (usually a
   PI) giving ``u`` from the current error, as voltage-driven rigs run them.
@@ -35,8 +35,11 @@ from typing import Any, Union
 import control
 import numpy as np
 
-from .pid import ANTI_WINDUP, PID, DiscretePID
-from .rigs import RigError
+from ..plant import fast
+from ..plant.formulas import point
+from ..plant.params import as_params
+from ..rigs import RigError, _Doc, load_rig
+from .pid import ANTI_WINDUP, DiscretePID, PID
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -257,10 +260,6 @@ def discrete_plant(params, x_op: float, ts: float, *, i_op: float | None = None)
     outputs ``y`` [MU] (the reading's slope) and ``i`` [A]. Returns a python-control
     ``StateSpace`` with ``dt = ts`` and named signals; ``.op`` holds the operating point
     (``x``, ``i``, ``u``, ``y``)."""
-    from . import fast
-    from .formulas import point
-    from .params import as_params
-
     p = as_params(params)
     pt = point(p, x_op) if i_op is None else point(p, x_op, i_op)
     s0 = np.array([x_op, 0.0, pt.i])
@@ -315,8 +314,6 @@ def design_state_feedback(params, x_op: float, ts: float, *, q: tuple[float, flo
     measure_current : bool
         Whether the observer uses the measured current.
     """
-    from .params import as_params
-
     p = as_params(params)
     plant = discrete_plant(p, x_op, ts)
     A, B, C = plant.A, plant.B, plant.C
@@ -407,8 +404,6 @@ def load_controller(name_or_path: str | Path, rig=None) -> ControllerFile:
         Missing, unknown or non-physical keys, or a file that names another rig; the message names
         the file and the key.
     """
-    from .rigs import _Doc, load_rig
-
     path = controller_path(name_or_path)
     try:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))

@@ -13,8 +13,9 @@ from pathlib import Path
 import control
 import numpy as np
 
-from .linear import linearize
-from .params import PlantParams
+# Imported inside functions, on purpose: matplotlib (heavy, only the plots).
+from ..plant.linear import linearize
+from ..plant.params import PlantParams, set_label
 from .pid import PID, pid_continuous_tf, pid_tf
 
 
@@ -91,8 +92,6 @@ def plot_root_locus(p: PlantParams, x_op: float, cfg: PID, path: str | Path, *, 
     import matplotlib.pyplot as plt
     from matplotlib.patches import Rectangle
 
-    from .params import set_label
-
     gains = np.logspace(-3, 2, 600)
     br = root_locus_branches(p, x_op, cfg, gains)
     chosen = root_locus_branches(p, x_op, cfg, np.array([cfg.kp]))[0]
@@ -150,8 +149,6 @@ def plot_closed_loop_bode(p: PlantParams, x_op: float, cfg: PID, path: str | Pat
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from .params import set_label
 
     T = discrete_closed_loop(p, x_op, cfg)
     f = np.logspace(-1, np.log10(0.5 / cfg.ts * 0.999), 2000)

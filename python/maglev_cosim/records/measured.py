@@ -20,7 +20,7 @@ The format is told from the content, never the file name (:func:`sniff`).
 
 Both rigs record the gap below the magnet (growing downward): :class:`maglev_cosim.rigs.Rig`
 maps it onto the plant. Non-uniform time is an error unless ``resample=True``. Every error is a
-:class:`maglev_cosim.record.RecordError` naming the file and where (line and column in a text
+:class:`maglev_cosim.records.record.RecordError` naming the file and where (line and column in a text
 file; the variable and row of a ``.mat`` file, with line and column 0).
 """
 
@@ -28,12 +28,14 @@ from __future__ import annotations
 
 import math
 import re
+import struct
 import unicodedata
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+import scipy.io
 
 from .record import RecordError
 
@@ -148,8 +150,6 @@ def read_inteco_mat(path: str | Path, *, coil: int = 1, resample: bool = False) 
         Missing file, not a MATLAB file, no known variable, wrong shape, non-finite values,
         positions off by a unit, non-uniform time (unless ``resample``).
     """
-    import scipy.io
-
     path = Path(path)
     if coil not in (1, 2):
         raise ValueError(f"coil must be 1 or 2, got {coil}")
@@ -273,7 +273,7 @@ SAMPLES_KEYS = ("samples", "muestras")
 #: The formats of real rigs' records that :func:`sniff` tells apart (it also knows ``"ce152"``).
 MEASURED_FORMATS = ("inteco-mat", "levitador", "columns")
 CE152_REFUSAL = ("a CE152-format record (docs/record-format.md: '# key: value' metadata, then the header t,w,u,y "
-                 "in machine units), not a real rig's record: read it with maglev_cosim.record.read_record "
+                 "in machine units), not a real rig's record: read it with maglev_cosim.records.record.read_record "
                  "(maglev-cosim diagnose without --rig)")
 
 
@@ -317,8 +317,6 @@ def _sniff(path: Path) -> tuple[str | None, int]:
 def _mat4(head: bytes) -> bool:
     """A MATLAB level-4 file (no text header: the Inteco results are one): its first matrix header,
     five int32 (type MOPT, rows, columns, imaginary flag, name length), then a NUL-ended name."""
-    import struct
-
     if len(head) < 21:
         return False
     for order in "<>":
@@ -620,7 +618,7 @@ def read_measured(path: str | Path, *, resample: bool = False, require: Sequence
     """A measured record in any published format, told apart by the content (:func:`sniff`):
     a MATLAB file → Inteco (:func:`read_inteco_mat`; a ``.mat`` name too, for its error message),
     text → :func:`read_levitador` (either format, or a declared-columns record). A record in the
-    CE152 record format is refused on its header line: :func:`maglev_cosim.record.read_record`
+    CE152 record format is refused on its header line: :func:`maglev_cosim.records.record.read_record`
     reads it."""
     p = Path(path)
     fmt = sniff(p)

@@ -22,7 +22,7 @@ from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFr
                        fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
 from fmpy.fmi3 import FMU3Slave
 
-from ._resources import ResourceError, fmu_path
+from .._resources import ResourceError, fmu_path
 
 #: Output variables read after every step, in this order.
 OUTPUTS: tuple[str, ...] = ("y", "x", "v", "i")

@@ -19,6 +19,8 @@ several records at once by least squares on the 20 ms prediction errors of gap a
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -26,14 +28,24 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy import signal
+from scipy.optimize import least_squares, minimize, minimize_scalar
 
-from . import fast
-from .diagnosis import blackbox as bb
-from .measured import Measured, Segment, levitation_segments
+# Imported inside a function, on purpose: matplotlib (heavy, only the plots).
+from .._html import write_html
+from ..loop import fast_loop
+from ..loop.controllers import Cascade, needs_current
+from ..loop.fmu import ensure_fmu
+from ..plant import fast
+from ..plant.calibrated_fmu import calibrated_fmu
+from ..plant.fast import param_table
+from ..plant.formulas import point
+from ..plant.params import PlantParams
+from ..records.measured import Measured, Segment, levitation_segments, read_measured
+from ..records.record import RecordError
+from ..rigs import Rig
+from . import blackbox as bb
 from .metrics import nrmse_fit
-from .params import PlantParams
-from .report import calibrated_fmu, write_html
-from .rigs import Rig
 
 #: Prediction horizons of the position figures [s].
 HORIZONS_S = (0.005, 0.020, 0.050)
@@ -64,7 +76,7 @@ class RigRecord:
 
 
 def prepare(rig: Rig, m: Measured, *, min_duration: float = 1.0) -> list[RigRecord]:
-    """The levitation segments of ``m`` (:func:`maglev_cosim.measured.levitation_segments`: off the
+    """The levitation segments of ``m`` (:func:`maglev_cosim.records.measured.levitation_segments`: off the
     rig's two stops, coil on), each as plant signals."""
     if m.drive is None:
         raise ValueError(f"{m.path}: the record has no actuator signal: a replay needs it")
@@ -86,8 +98,6 @@ def check_units(rig: Rig, m: Measured) -> None:
     """Refuses a record whose position contradicts the rig's stops by a unit factor: most samples
     outside the travel widened by half of it on each side (mm read as m: 1000x too large; or the
     other way round, a travel squeezed into a thousandth). Names the file and the column."""
-    from .record import RecordError
-
     lo, hi = rig.stops
     travel = hi - lo
     pos = np.asarray(m.position, float)
@@ -220,8 +230,6 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
     is tracked) fit the measured current: least squares on factors in [0.5, 2] (offsets ±1 V).
     Returns the parameters and a summary (``values``, ``fit`` % per record, ``on_bounds``); with
     no measured current, the parameters unchanged and ``None``."""
-    from scipy.optimize import least_squares
-
     names = tuple(names or COIL[rig.drive])
     use = [r for r in records if r.current is not None]
     if not use:
@@ -284,8 +292,6 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
 
     Returns the calibrated parameters and a summary: ``values``, ``rig_values``, ``noise`` (the
     calibrated disturbance model), costs before and after, evaluations, ``on_bounds``."""
-    from scipy.optimize import least_squares
-
     p0 = params or rig.params
     names = tuple(names or CALIBRATED[rig.drive])
     nz0 = dict(noise or noise_defaults(rig, p0))
@@ -449,8 +455,6 @@ def _fit_one(rig: Rig, records: Sequence[RigRecord], params: PlantParams, name: 
              parity: int | None, noise: dict[str, float] | None = None) -> tuple[float, float]:
     """The value of one effect parameter that minimises the prediction cost (grid, then a bounded
     scalar search around the best grid point), with the other parameters held: (value, cost)."""
-    from scipy.optimize import minimize_scalar
-
     def cost(v: float) -> float:
         try:
             p = params.replace(**{name: float(v)})
@@ -473,8 +477,6 @@ def _fit_pair(rig: Rig, records: Sequence[RigRecord], params: PlantParams, ea, e
               parity: int | None, noise: dict[str, float] | None) -> PlantParams:
     """Two effects' parameters fitted together (Nelder-Mead on the same prediction cost as
     :func:`_fit_one`, in coordinates scaled by each catalogue range, from ``start``): the model."""
-    from scipy.optimize import minimize
-
     (pa, ba), (pb, bb_) = (ea[1], ea[4]), (eb[1], eb[4])
     span = np.array([ba[1] - ba[0], bb_[1] - bb_[0]])
     lo = np.array([ba[0], bb_[0]])
@@ -581,10 +583,6 @@ def current_to_position(rig: Rig, r: RigRecord, params: PlantParams, *, seconds_
     ``G = P_iz / P_ii``, with the coherence) beside the model's, linearised at the segment's mean
     position: ``m·s²·x = dF/dx·x + dF/di·i`` (Eq. 16, 17), in the record's convention. In closed loop
     the estimate is biased where the coherence is low; the JSON gives both on 1–20 Hz."""
-    from scipy import signal
-
-    from .formulas import point
-
     if r.current is None:
         return {}
     fs = 1.0 / r.ts
@@ -729,8 +727,6 @@ def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> d
     90th percentiles of ``F/(m·g)``. A ball that levitates for seconds is held, on average, by its
     weight: a median far from 1 is a force constant (or a current or position scale) that
     contradicts the record. ``None`` without a measured current or levitating samples."""
-    from .formulas import point
-
     p = params or rig.params
     if m.current is None:
         return None
@@ -773,8 +769,6 @@ def controller_check(rig: Rig, m: Measured, ctl) -> dict:
     replayed from two starts, settled (holding the recorded current and actuator signal: a record
     cut from a running loop) and from rest (empty integrators, no current, no output: a controller
     switched on at the record's start), and the better fit is kept (``start``, ``fits_by_start``)."""
-    from .controllers import Cascade, needs_current
-
     if m.reference is None or m.drive is None:
         raise ValueError(f"{m.path}: checking a declared controller needs the recorded reference and actuator signal")
     if needs_current(ctl) and m.current is None:
@@ -784,14 +778,14 @@ def controller_check(rig: Rig, m: Measured, ctl) -> dict:
     x = float(rig.to_x(m.position[0]))
     starts = {"settled": ((x, 0.0, float(m.current[0]) if m.current is not None else 0.0), float(u_meas[0])),
               "rest": ((x, 0.0, 0.0), 0.0)}
-    fits = {name: nrmse_fit(u_meas, fast.control(ctl, w, y, m.current, hold, x0))
+    fits = {name: nrmse_fit(u_meas, fast_loop.control(ctl, w, y, m.current, hold, x0))
             for name, (x0, hold) in starts.items()}
     start = max(fits, key=lambda k: fits[k] if np.isfinite(fits[k]) else -np.inf)
     out = {"actuator_fit": fits[start], "start": start, "fits_by_start": fits, "loops": {}}
     r_meas = m.extra.get("current_reference")
     if isinstance(ctl, Cascade) and r_meas is not None:
-        r = fast.control(ctl.outer, w, y, None, float(r_meas[0]))
-        ui = fast.control(ctl.inner, r_meas, m.current, None, float(u_meas[0]))
+        r = fast_loop.control(ctl.outer, w, y, None, float(r_meas[0]))
+        ui = fast_loop.control(ctl.inner, r_meas, m.current, None, float(u_meas[0]))
         out["loops"] = {"position -> current reference": {"fit": nrmse_fit(r_meas, r),
                                                          "rms_A": float(np.sqrt(np.mean((r - r_meas) ** 2)))},
                         "current -> actuator": {"fit": nrmse_fit(u_meas, ui),
@@ -810,7 +804,7 @@ def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams
     w = np.asarray(rig.reading(seg.reference))
     h = max(1, int(round(horizon_s / r.ts)))
     nz = noise_defaults(rig, params)
-    o = fast.predict(_start(rig, r, params), ctl, w, r.y, r.u, float(r.u[0]), q_force=nz["q_force"],
+    o = fast_loop.predict(_start(rig, r, params), ctl, w, r.y, r.u, float(r.u[0]), q_force=nz["q_force"],
                      f_force=nz["f_force"], r_sensor=nz["r_sensor"], horizon=h)
     ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"]) & np.isfinite(o["u_pred"])
     return {"label": r.label, "horizon_s": horizon_s, "gap_fit": nrmse_fit(r.y[ok], o["y_pred"][ok]),
@@ -820,8 +814,6 @@ def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams
 # ----------------------------------------------------------------------------- the commands
 
 def _load_all(rig: Rig, paths: Sequence[str | Path], resample: bool) -> list[tuple[Measured, list[RigRecord]]]:
-    from .measured import read_measured
-
     out = []
     for p in paths:
         m = read_measured(p, resample=resample)
@@ -837,11 +829,9 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
     records: drift is a finding), the fit on the ``validate`` records not used, the verdict, and
     writes ``report.md``, the JSON and the plots into ``out``. Everything is read and checked
     before anything is written. ``controller``: a declared controller
-    (:class:`maglev_cosim.controllers.ControllerFile`), checked against each record and replayed
+    (:class:`maglev_cosim.loop.controllers.ControllerFile`), checked against each record and replayed
     in closed loop (:func:`controller_check`, :func:`closed_loop_figures`). ``effects``: try the
     catalogue's effects on the calibrated model (:func:`effect_search`)."""
-    import json
-
     say = progress or (lambda msg: None)
     train = _load_all(rig, paths, resample)
     held = _load_all(rig, validate, resample)
@@ -1085,11 +1075,6 @@ def _calibrated_rig_fmu(rig: Rig, result: dict, params: PlantParams, train, out:
     """The rig's FMU with the calibrated parameters as start values, with its provenance in
     ``resources/calibration.json`` (records and their sha256, parameters with units and σ, the
     verdict, the comparison with the black box) and the report as ``documentation/``."""
-    import hashlib
-    import json
-
-    from .fmu import ensure_fmu
-
     units = {n: u for n, (_, _, _, u) in fast.param_table().items()}
     sigma = result.get("uncertainties", {})
     provenance = {
@@ -1175,8 +1160,6 @@ def _markdown(res: dict, plots: list[Path]) -> str:
         lines.append("")
     cal = res.get("calibration")
     if cal:
-        from .fast import param_table
-
         units = {n: u for n, (_, _, _, u) in param_table().items()}
         lines += ["## Calibration", "", "| parameter | unit | rig file | calibrated |", "|---|---|---|---|"]
         lines += [f"| {n} | {units.get(n, '')} | {cal['rig_values'][n]:.6g} | {cal['values'][n]:.6g} |"

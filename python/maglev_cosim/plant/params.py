@@ -13,6 +13,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 
+from .fast import check_params
+
 
 @dataclass(frozen=True)
 class PlantParams:
@@ -78,8 +80,6 @@ class PlantParams:
         """Raises ``ValueError`` (one line naming the variable) unless the FMU would accept these
         values: each in the range of the C variable table, and the relations between them. The
         rules live once, in C (``maglev_check_value``, ``maglev_check_params``)."""
-        from .fast import check_params
-
         check_params(self.to_start_values())
 
 

@@ -1,6 +1,6 @@
 """Replaying a record in closed loop on the C plant (cffi fast path).
 
-The record's controller and reference drive the model (:func:`maglev_cosim.loop.simulate`); the
+The record's controller and reference drive the model (:func:`maglev_cosim.loop.simulate.simulate`); the
 loop starts settled at the first reading ``y[0]``: the ball at rest where the model's sensor
 reads ``y[0]``, the current at equilibrium there, ``e[−1] = 0`` and the integrator holding the
 equilibrium input.
@@ -12,18 +12,20 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import minimize
 
-from . import fast, formulas
-from .loop import settled_start_vector
-from .params import as_params, get_params
-from .controllers import Controller
-from .pid import PID
-from .record import Record
+from ..loop import fast_loop
+from ..loop.controllers import Controller
+from ..loop.pid import PID
+from ..loop.simulate import settled_start_vector
+from ..plant import fast, formulas
+from ..plant.params import as_params, get_params
+from ..records.record import Record
 
 
 def baseline_params() -> dict[str, float]:
     """FMU parameter values of the diagnosis baseline: the paper's simulation model, Section 3 with
-    T_a neglected (Eq. 5), the ``baseline`` set of :mod:`maglev_cosim.params`."""
+    T_a neglected (Eq. 5), the ``baseline`` set of :mod:`maglev_cosim.plant.params`."""
     return get_params("baseline").to_start_values()
 
 
@@ -36,7 +38,7 @@ def record_controller(rec: Record) -> Controller:
 def _settled_at_first_reading(rec: Record, params: Mapping[str, float] | np.ndarray) -> tuple[np.ndarray, float]:
     """``params`` checked as the FMU would, as a parameter vector with the start state where every
     replay of a record starts: at rest where the model reads ``y[0]``, the current at equilibrium
-    there (:func:`~maglev_cosim.loop.settled_start`); and the hold input [MU]. It works on the
+    there (:func:`~maglev_cosim.loop.simulate.settled_start`); and the hold input [MU]. It works on the
     vector: a fit replays thousands of times, and building parameter objects cost a third of each."""
     pv = fast.param_vector(params)
     return settled_start_vector(pv, formulas.position(pv, float(rec.y[0])))
@@ -45,7 +47,7 @@ def _settled_at_first_reading(rec: Record, params: Mapping[str, float] | np.ndar
 def replay(rec: Record, params: Mapping[str, float] | np.ndarray, *, w: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The record's closed loop simulated with ``params`` (FMU parameter values, or a vector of
     them), settled at the position where the model reads ``y[0]``: the loop of
-    :func:`maglev_cosim.loop.simulate` (``backend="fast"``, ``x_op`` there), in one C call.
+    :func:`maglev_cosim.loop.simulate.simulate` (``backend="fast"``, ``x_op`` there), in one C call.
 
     Returns arrays t [s], w, u, y [MU], x [m], v [m/s], i [A]. Raises ``ValueError`` (one line
     naming the variable) for a parameter set the FMU would refuse."""
@@ -61,7 +63,7 @@ def replay_injected(rec: Record, params: Mapping[str, float] | np.ndarray, *, du
     value per sample, or None; ``y_step``, ``u_step`` [MU]: the converters' steps (0: none). Same
     start as :func:`replay`; with no injection the same result."""
     start, u_hold = _settled_at_first_reading(rec, params)
-    return fast.closed_loop(start, rec.w if w is None else w, pid=record_controller(rec), u_hold=u_hold,
+    return fast_loop.closed_loop(start, rec.w if w is None else w, pid=record_controller(rec), u_hold=u_hold,
                             du=du, dF=dF, dy=dy, y_step=y_step, u_step=u_step)
 
 # ----------------------------------------------------------------------------- prediction-error replay
@@ -126,7 +128,7 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
     """
     start, u_hold = _settled_at_first_reading(rec, params)
     horizon = horizon_samples(horizon_s, rec.ts)
-    return fast.predict(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold,
+    return fast_loop.predict(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold,
                         q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizon=horizon,
                         stride=stride)
 
@@ -143,8 +145,6 @@ def estimate_noise(rec: Record, params: Mapping[str, float]) -> NoiseModel:
     """The record's disturbance levels by maximum likelihood of the filter's innovations: the
     random force's RMS and corner and the sensor noise's RMS (Nelder-Mead over their logarithms,
     started from the reading's white noise and 0.3 % of the weight at 20 Hz)."""
-    from scipy.optimize import minimize
-
     p = as_params(params)
     d2 = np.diff(rec.y, 2)
     r0 = max(float(1.4826 * np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0), 1e-5)

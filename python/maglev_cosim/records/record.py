@@ -30,7 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from .pid import ANTI_WINDUP as _ALL_ANTI_WINDUP
+from ..loop.controllers import ControllerError, load_controller
+from ..loop.pid import ANTI_WINDUP as _ALL_ANTI_WINDUP
+from ..plant.formulas import point
+from ..plant.params import as_params
 
 #: The anti-windup schemes a record's metadata can declare (a band needs its limits: a controller file).
 ANTI_WINDUP = _ALL_ANTI_WINDUP[:3]
@@ -104,8 +107,6 @@ class Record:
 def _controller_file(path: Path, lines: list[str], meta: dict[str, str], meta_line: dict[str, int]):
     """The controller file a record's metadata names (a path relative to the record's folder, or a
     shipped controller), read for the CE152 rig; its errors point at the metadata value."""
-    from .controllers import ControllerError, load_controller
-
     value = meta["controller"].strip()
     line = meta_line["controller"]
     candidate = Path(value) if Path(value).is_absolute() else Path(path).parent / value
@@ -384,8 +385,6 @@ def stop_runs(rec: Record, params=None) -> list[tuple[str, int, int]]:
     A sample is on a stop when its reading is within a tolerance of the model's reading at
     ``x_min`` or ``x_max`` (Eq. 12, 13 through the C plant), while the reference asks for a
     position well away from it; only stretches of at least :data:`STOP_RUN` count."""
-    from .formulas import point  # lazy: the reader itself needs no compiled code
-
     tol = max(0.01, 4.0 * _noise_std(rec.y))
     runs: list[tuple[str, int, int]] = []
     lo, hi = (point(params, _stop(params, name)).y for name in ("x_min", "x_max"))
@@ -400,8 +399,6 @@ def stop_runs(rec: Record, params=None) -> list[tuple[str, int, int]]:
 
 
 def _stop(params, name: str) -> float:
-    from .params import as_params
-
     return float(getattr(as_params(params), name))
 
 

@@ -8,70 +8,22 @@ import hashlib
 import json
 import math
 import os
-import uuid
 import zipfile
 from datetime import datetime, timezone
-from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
-from .diagnosis import CATALOGUE, CRITERION, Diagnosis
-from .metrics import nrmse_fit, psd, resid
-from .params import set_label
-from .record import Record
-
-
-#: Namespace of the GUIDs issued to calibrated and rig FMUs (uuid5 of what makes the model).
-GUID_NAMESPACE = uuid.UUID("6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0002")
-
-
-def issued_guid(base_guid: str, parameters: Mapping[str, float], source_sha256: str | None = None) -> str:
-    """The GUID of a calibrated FMU: a uuid5 of the nominal FMU's GUID, the start values and the
-    hash of the source record, so the same calibration of the same record gets the same GUID."""
-    key = json.dumps({"base": base_guid, "parameters": {k: repr(float(v)) for k, v in sorted(parameters.items())},
-                      "record_sha256": source_sha256}, sort_keys=True)
-    return "{" + str(uuid.uuid5(GUID_NAMESPACE, key)) + "}"
-
-
-def calibrated_fmu(source: Path, out: Path, parameters: Mapping[str, float], *,
-                   resources: Mapping[str, bytes] | None = None, description: str | None = None,
-                   model_name: str | None = None, documentation: Mapping[str, bytes] | None = None,
-                   source_sha256: str | None = None) -> Path:
-    """A copy of the FMU ``source`` whose parameter start values are ``parameters``: a model of its
-    own, with a GUID of its own (:func:`issued_guid`, stated in ``resources/guid.txt`` too, the one
-    besides its built-in GUID the binary accepts), extra ``resources/`` and ``documentation/`` files
-    (FMI 2.0: ``documentation/index.html`` is the entry point) and, when given, another model name
-    and description. The ``modelIdentifier`` stays the binary's name."""
-    from lxml import etree
-
-    with zipfile.ZipFile(source) as zin:
-        root = etree.fromstring(zin.read("modelDescription.xml"))
-        lines = ["# start values of this FMU's parameters: the FMU reads them at fmi2Instantiate, so that it",
-                 "# uses the start values its modelDescription.xml states (written by maglev-cosim)"]
-        for sv in root.iter("ScalarVariable"):
-            name = sv.get("name")
-            if name in parameters and sv.get("causality") == "parameter":
-                real = sv.find("Real")
-                real.set("start", repr(float(parameters[name])))
-                lines.append(f"{name} {float(parameters[name])!r}")
-        guid = issued_guid(root.get("guid"), parameters, source_sha256)
-        root.set("guid", guid)
-        resources = {"start_values.txt": ("\n".join(lines) + "\n").encode(), "guid.txt": (guid + "\n").encode(),
-                     **(resources or {})}
-        if description:
-            root.set("description", description)
-        if model_name:
-            root.set("modelName", model_name)
-        xml = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
-        with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as zout:
-            for item in zin.infolist():
-                data = xml if item.filename == "modelDescription.xml" else zin.read(item.filename)
-                zout.writestr(item, data)
-            for folder, files in (("resources", resources), ("documentation", documentation or {})):
-                for name, data in files.items():
-                    zout.writestr(f"{folder}/{name}", data)
-    return out
+# Imported inside functions, on purpose: matplotlib (heavy, only the plots) and lxml (fmpy's dependency).
+from .._html import write_html
+from ..diagnosis import CATALOGUE, CRITERION, Diagnosis
+from ..diagnosis.locate import LOCATIONS, best_per_location
+from ..diagnosis.metrics import nrmse_fit, psd, resid
+from ..diagnosis.replay import baseline_params
+from ..plant.calibrated_fmu import calibrated_fmu, issued_guid
+from ..plant.fast import param_table
+from ..plant.params import set_label
+from ..records.record import Record
 
 
 def _sha256(path: str | Path) -> str | None:
@@ -92,8 +44,6 @@ def calibration_data(rec: Record, d: Diagnosis) -> dict:
     """``resources/calibration.json`` of a calibrated FMU: the source record and its hash, the date,
     the effects found, every parameter that differs from the C defaults with its ±1 standard error
     where the diagnosis estimated one, and the fit figures before and after."""
-    from .fast import param_table
-
     table = param_table()
     params = {}
     for name, value in d.parameters.items():
@@ -233,22 +183,40 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
     plt.close(fig)
     files.append("spectrum.png")
 
-    # MATLAB resid: is what the final model leaves white, and independent of the reference?
-    fig, ax = plt.subplots(2, 2, figsize=(11, 6), sharex=True)
+    # MATLAB resid on what the verdict judges: the one-step innovations of the final model's Kalman
+    # filter (their predictable share decides `unexplained`), against its past, the reference and
+    # the input; the free-run residual is autocorrelated by nature (the loop filters the random force),
+    # so a white-noise band says nothing of it: it is in residual.png and spectrum.png.
+    fig, ax = plt.subplots(1, 3, figsize=(13, 4.4), sharex=True)
     max_lag = int(round(0.05 / rec.ts))
-    for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
-        r = resid(meas - after[sig], rec.w, max_lag=max_lag)
-        for j, (vals, title) in enumerate(((r.auto, f"autocorrelation of the {sig} residual"),
-                                            (r.cross, f"cross-correlation of the {sig} residual with w"))):
-            ax[k, j].vlines(r.lags * rec.ts * 1e3, 0, vals, color="tab:blue", lw=1)
-            ax[k, j].axhspan(-r.band, r.band, color="tab:orange", alpha=0.25,
-                             label=f"{100 * r.confidence:.0f} % band of a white residual")
-            ax[k, j].set_title(title, fontsize=9)
-            ax[k, j].axhline(0, color="0.5", lw=0.6)
-        ax[k, 0].legend(fontsize=7, loc="upper right")
-    for j in range(2):
-        ax[1, j].set_xlabel("lag [ms]")
-    fig.suptitle("Residual analysis of the final model (as MATLAB's resid)" + "\n" + model, fontsize=10)
+    if d.verdict is not None:
+        innov = d.verdict.after.sims["innov"]
+        ok = np.isfinite(innov)
+        e = np.where(ok, innov, 0.0)
+        r_w = resid(e, rec.w, max_lag=max_lag)
+        r_u = resid(e, rec.u, max_lag=max_lag)
+        panels = ((r_w.lags, r_w.auto, r_w.band, "autocorrelation", "innovations of y: autocorrelation"),
+                  (r_w.lags, r_w.cross, r_w.band, "cross-correlation with w",
+                   "innovations of y against the reference w"),
+                  (r_u.lags, r_u.cross, r_u.band, "cross-correlation with u",
+                   "innovations of y against the input u"))
+        for a, (lags, vals, band, ylabel, title) in zip(ax, panels):
+            a.vlines(lags * rec.ts * 1e3, 0, vals, color="tab:blue", lw=1)
+            a.axhspan(-band, band, color="tab:orange", alpha=0.25,
+                      label=f"{100 * r_w.confidence:.0f} % band of a white residual")
+            a.axhline(0, color="0.5", lw=0.6)
+            a.set_title(title, fontsize=9)
+            a.set_ylabel(ylabel)
+            a.set_xlabel("lag [ms]")
+        ax[0].legend(fontsize=7, loc="upper right")
+        share = d.verdict.predictable_share["after"]
+        what = (f"one-step innovations of the final model's Kalman filter\n(the residual the verdict judges: "
+                f"{100 * share:.1f} % predictable from their past and the input)")
+    else:
+        for a in ax:
+            a.set_axis_off()
+        what = "no verdict: no innovations"
+    fig.suptitle(f"Residual analysis of the final model (as MATLAB's resid): {what}" + "\n" + model, fontsize=10)
     fig.tight_layout()
     fig.savefig(out / "resid.png", dpi=110)
     plt.close(fig)
@@ -272,8 +240,6 @@ def _friction_text(shape: Mapping) -> str:
 def _location_plot(corrections, out: Path, plt, model: str = "") -> str:
     """The best generic correction at each location: the spline's curve over its signal, or the
     filter's frequency response; its held-out gain in the title."""
-    from .diagnosis.locate import LOCATIONS, best_per_location
-
     best = best_per_location(corrections)
     # the mechanics' force of gap and velocity, drawn against the velocity: a friction shows as a
     # step at v = 0 (issue 22, item 3), whichever correction is the mechanics' best
@@ -330,6 +296,11 @@ def _verdict_sentence(d: Diagnosis) -> str:
         return "The calibrated model with " + ", ".join(d.selected) + " explains the record."
     if v == "no effect":
         return "The calibrated baseline already explains the record: no effect of the catalogue is missing."
+    if v == "explained in part":
+        loc = (d.verdict.noise_floor or {}).get("location") or "undetermined"
+        return ("The calibrated model with " + ", ".join(d.selected) + " explains part of the record; its disturbance "
+                "estimate explains the rest, which it should not (see the warnings)"
+                + ("." if loc == "undetermined" else f": what remains enters most likely at the {loc}."))
     if v == "calibration failed":
         return "The calibration ended on a bound of a parameter's range: the model does not fit this record."
     loc = v.split(":", 1)[1].strip()
@@ -352,8 +323,6 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     written["json"] = out / "diagnosis.json"
     pngs = _plots(rec, d, out)
 
-    from .fast import param_table
-
     units = {n: row[3] for n, row in param_table().items()}
     lines = [f"# Diagnosis of `{rec.path}`", ""]
     if d.verdict is not None:
@@ -370,7 +339,17 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
                   f"force of {v.noise.q_force * 1e3:.3g} mN RMS (corner {v.noise.f_force:.3g} Hz) and a sensor "
                   f"noise of {v.noise.r_sensor:.3g} MU RMS, estimated from the innovations. What the final model "
                   f"leaves in the innovations is {100 * v.predictable_share['after']:.1f} % predictable (baseline: "
-                  f"{100 * v.predictable_share['before']:.1f} %).", ""]
+                  f"{100 * v.predictable_share['before']:.1f} %)."]
+        rule = v.noise_floor or {}
+        fl, rs = rule.get("floor"), rule.get("reference_share")
+        if fl and rs:
+            lines[-1] += (f" Against the floor its own disturbance model implies (docs/diagnosis.md, the noise-floor "
+                          f"rule): its {fl['horizon_s'] * 1e3:.0f} ms prediction error is {fl['ratio_y']:.2f} (y) and "
+                          f"{fl['ratio_u']:.2f} (u) times what it leaves on records it simulates itself; the reference's "
+                          f"past and the ball's motion predict {100 * rs['r2']:.2f} % of its innovations "
+                          f"({100 * rs.get('own_records_r2', 0.0):.2f} % on its own records); its random force is "
+                          f"{rule['force_growth']:.2f} times the calibrated baseline's.")
+        lines.append("")
     if d.warnings:
         lines += ["**Warnings**:", ""] + [f"- {w}" for w in d.warnings] + [""]
     ctrl = (f"controller {type(rec.controller).__name__} declared by `{rec.controller_file}`"
@@ -415,14 +394,22 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
                 lines.append(f"| {p} | {_fmt(d.parameters[p])} | {_fmt(d.uncertainties.get(p, float('nan')))} "
                              f"| {units[p]} |")
         lines.append("")
-    lines += ["### Calibrated baseline parameters", "", "| parameter | value | ± | Section 3 | unit |",
-              "|---|---|---|---|---|"]
-    from .replay import baseline_params
-
     paper = baseline_params()
+    # the calibrated baseline's values (the "before" model: diagnosis.json's calibrated_baseline),
+    # then the final model's, refitted with the effects, with their standard errors
+    lines += ["### Calibrated baseline parameters", "",
+              "The `baseline` set calibrated on the record, before any effect (the \"before\" model; "
+              "`calibrated_baseline` in diagnosis.json):", "",
+              "| parameter | calibrated baseline | Section 3 | unit |", "|---|---|---|---|"]
+    for name in ("k_c", "x_0", "k_FV", "u_0"):
+        lines.append(f"| {name} | {_fmt(float(d.calibrated_baseline[name]))} | {_fmt(paper[name])} | {units[name]} |")
+    lines += ["", "### Final model's calibrated parameters", "",
+              "The same parameters of the final model (" + (", ".join(d.selected) or "no effect")
+              + "), refitted on the whole record (`parameters` in diagnosis.json; ±1 standard error):", "",
+              "| parameter | final model | ± | calibrated baseline | unit |", "|---|---|---|---|---|"]
     for name in ("k_c", "x_0", "k_FV", "u_0"):
         lines.append(f"| {name} | {_fmt(d.parameters[name])} | {_fmt(d.uncertainties.get(name, float('nan')))} "
-                     f"| {_fmt(paper[name])} | {units[name]} |")
+                     f"| {_fmt(float(d.calibrated_baseline[name]))} | {units[name]} |")
     lines += ["", "The A/D offset y_MU0 is not calibrated: in a regulated loop it shifts the picture exactly "
               "as x_0 does.", ""]
     lines += ["## Candidates", "", "| round | effect | parameters | rms_y [MU] | rms_u [MU] | held-out cost change | LR stat | "
@@ -468,30 +455,3 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     if fmu_out is not None:
         written["fmu"] = write_calibrated_fmu(rec, d, fmu, fmu_out, out)
     return written
-
-
-def write_html(markdown_path: Path, html_path: Path) -> Path:
-    """A self-contained HTML page from a Markdown report: tables rendered, every PNG it links
-    embedded as a data URI, so that the one file can be mailed or archived."""
-    import base64
-    import re
-
-    import markdown
-
-    folder = markdown_path.parent
-    body = markdown.markdown(markdown_path.read_text(), extensions=["tables"])
-
-    def embed(m: re.Match) -> str:
-        png = folder / m.group(1)
-        if not png.is_file():
-            return m.group(0)
-        return f'src="data:image/png;base64,{base64.b64encode(png.read_bytes()).decode()}"'
-
-    body = re.sub(r'src="([^"]+\.png)"', embed, body)
-    title = markdown_path.read_text().splitlines()[0].lstrip("# ").strip() if markdown_path.stat().st_size else "report"
-    style = ("body{font-family:sans-serif;max-width:70em;margin:2em auto;padding:0 1em;line-height:1.45}"
-             "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:.25em .6em;"
-             "text-align:left}th{background:#eee}img{max-width:100%}code{background:#f4f4f4;padding:0 .2em}")
-    html_path.write_text(f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><title>{title}</title>'
-                         f"<style>{style}</style></head><body>\n{body}\n</body></html>\n")
-    return html_path

@@ -1,4 +1,4 @@
-"""Synthetic records from the rig emulator (:mod:`.rig`), with an undeclared effect.
+"""Synthetic records from the rig emulator (:mod:`.emulator`), with an undeclared effect.
 
 The record carries the controller's metadata and the reference kind and seed, never the
 effect; the truth goes to a sidecar ``<record>.truth.json`` that the diagnosis never reads.
@@ -11,9 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ..loop.design import discrete_closed_loop
+from ..loop.pid import PID
+from ..plant.params import get_params
+from . import emulator as _rig
+from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth
+from .emulator import RigConfig, simulate_rig
 from .record import write_record
-from . import rig as _rig
-from .rig import RigConfig, simulate_rig
 
 #: Effect name -> its parameters (rig names = FMU names for the catalogue).
 EFFECTS: dict[str, tuple[str, ...]] = {
@@ -66,7 +70,6 @@ FAMILY = {
     "bits": (10, 14),
     "kp": (1.5, 3.0), "ki": (1.0, 6.0), "kd": (0.006, 0.014),   # PID gains, kept when the loop is stable
 }
-DISTURBANCE_KEYS = ("sigma_y", "sigma_F_rel", "tau_F_noise", "F_drift_rel", "tau_drift", "bits")
 
 
 def draw_disturbance(seed: int, *, gains: bool = True) -> dict[str, float]:
@@ -90,10 +93,6 @@ def draw_disturbance(seed: int, *, gains: bool = True) -> dict[str, float]:
         "bits": int(rng.integers(f["bits"][0], f["bits"][1] + 1)),
     }
     if gains:
-        from .analysis import discrete_closed_loop
-        from .params import get_params
-        from .pid import PID
-
         p = get_params("baseline")
 
         def damped(pid: PID, x: float) -> bool:
@@ -124,24 +123,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     :func:`draw_disturbance`) over the emulator's defaults; PID gains in it override ``kp``, ``ki``, ``kd``."""
     kind = reference
     effects = effects or {}
-    values: dict[str, float] = {}
-    for name, pv in effects.items():
-        if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r}: choose from {', '.join(EFFECTS)}")
-        for k in pv:
-            if k not in EFFECTS[name]:
-                raise ValueError(f"effect {name} has no parameter {k!r}")
-        values.update(pv)
-    for k in params or {}:
-        if k not in PLANT_PARAMS:
-            raise ValueError(f"unknown plant parameter {k!r}: choose from {', '.join(PLANT_PARAMS)}")
-    dist = dict(disturbance or {})
-    kp, ki, kd = (float(dist.pop(k, v)) for k, v in (("kp", kp), ("ki", ki), ("kd", kd)))
-    bad = sorted(set(dist) - set(DISTURBANCE_KEYS))
-    if bad:
-        raise ValueError(f"unknown disturbance setting(s) {', '.join(bad)}: choose from {', '.join(DISTURBANCE_KEYS)}")
-    if "bits" in dist:
-        dist["bits"] = int(dist["bits"])
+    values, dist, (kp, ki, kd) = checked_settings(effects, params, disturbance, (kp, ki, kd), EFFECTS, PLANT_PARAMS)
     cfg = RigConfig().with_values(**{**(params or {}), **values, **dist}, seed=seed)
     if not noise:
         cfg = cfg.with_values(sigma_y=0.0, sigma_F_rel=0.0)
@@ -154,6 +136,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     truth = {"effects": effects, "params": params or {}, "noise": noise, "seed": seed, "reference": kind,
              **({"period_s": period} if period else {}),
              "duration": duration, "pid": {"kp": kp, "ki": ki, "kd": kd},
-             "disturbance": {k: getattr(cfg, k) for k in DISTURBANCE_KEYS}}
+             "disturbance": {k: getattr(cfg, k) for k in DISTURBANCE_KEYS},
+             **current_truth(sim["i"], sim["i_limited"] > 0)}
     Path(str(out) + ".truth.json").write_text(json.dumps(truth, indent=2))
     return out

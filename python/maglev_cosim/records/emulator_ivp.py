@@ -2,8 +2,8 @@
 
 It shares no code with the model the diagnosis fits: nothing here imports the C plant, its
 cffi face (``fast``, ``replay``), the pure-Python reference, the loop or the first emulator
-(``rig``). It takes from :mod:`maglev_cosim.params` only parameter values, by name, and writes
-records with :func:`maglev_cosim.record.write_record` (I/O, imported when a record is written).
+(``emulator``). It takes from :mod:`maglev_cosim.plant.params` only parameter values, by name, and writes
+records with :func:`maglev_cosim.records.record.write_record` (I/O).
 What it shares with the model is the paper's equations (``../shared/design/plant.md``: Eq. 1, 2,
 8, 12, 13 and the PID of Eq. 24/25) and the parameter values; everything else is its own:
 
@@ -33,7 +33,7 @@ What it shares with the model is the paper's equations (``../shared/design/plant
   ``v_c`` = 1 mm/s by default, and the viscous damping ``k_FV`` of Eq. 8 (a plant parameter).
 
 :func:`simulate` runs the loop and returns its signals; :func:`synth_record` writes a record with the
-arguments of :func:`maglev_cosim.synth.synth_record` (``maglev-cosim synth --emulator ivp``).
+arguments of :func:`maglev_cosim.records.synth.synth_record` (``maglev-cosim synth --emulator ivp``).
 """
 
 from __future__ import annotations
@@ -47,7 +47,9 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .params import PARAMETER_SETS
+from ..plant.params import PARAMETER_SETS
+from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth
+from .record import write_record
 
 #: The paper's values (Section 3, LQ fit), taken by name; ``T_a`` is an effect here (off by default).
 _PAPER = PARAMETER_SETS["section3"]
@@ -63,12 +65,10 @@ EFFECTS: dict[str, tuple[str, ...]] = {
     "coulomb_friction": ("F_c",),
 }
 
-#: Plant parameters a record may override (SI units), as :data:`maglev_cosim.synth.PLANT_PARAMS` and the stops.
+#: Plant parameters a record may override (SI units), as :data:`maglev_cosim.records.synth.PLANT_PARAMS` and the stops.
 PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD", "y_MU0",
                 "x_min", "x_max", "x_cal")
 
-#: The disturbance settings :func:`maglev_cosim.synth.draw_disturbance` draws (same names and units).
-DISTURBANCE_KEYS = ("sigma_y", "sigma_F_rel", "tau_F_noise", "F_drift_rel", "tau_drift", "bits")
 
 #: Settings of this emulator alone (``synth_record(settings=...)``, ``--setting NAME=VALUE``).
 SETTINGS = ("pid_offset", "f_y", "v_c", "method", "rtol")
@@ -402,7 +402,7 @@ def simulate(w: np.ndarray, cfg: IvpConfig | None = None, *, ts: float = 1e-3, k
 # --------------------------------------------------------------------------- records
 
 def _reference(kind: str, duration: float, ts: float, seed: int, period: float | None, c: IvpConfig) -> np.ndarray:
-    """A position reference [MU] of the kinds :func:`maglev_cosim.synth.synth_record` knows, built
+    """A position reference [MU] of the kinds :func:`maglev_cosim.records.synth.synth_record` knows, built
     here: ``square`` (3.0 ↔ 3.5 mm, period 3 s), ``sine`` (3.2 ± 0.6 mm, period 4 s), ``steps``
     (a random staircase across 2.0–4.5 mm, steps of 0.15–0.5 mm held 0.6–1.4 s), ``chirp``
     (3.2 ± 0.25 mm, 0.1 → 5 Hz). Positions are turned into readings by the nominal sensor."""
@@ -447,32 +447,15 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
                  settings: dict[str, float | str] | None = None) -> Path:
     """Simulates the rig with this emulator and writes a record at ``out`` (and ``out.truth.json``).
 
-    The arguments are those of :func:`maglev_cosim.synth.synth_record`: ``effects`` by catalogue
+    The arguments are those of :func:`maglev_cosim.records.synth.synth_record`: ``effects`` by catalogue
     name (:data:`EFFECTS`), plant ``params`` (:data:`PLANT_PARAMS`, SI units), ``disturbance``
-    (:data:`DISTURBANCE_KEYS` and the PID gains, e.g. from :func:`maglev_cosim.synth.draw_disturbance`:
+    (:data:`DISTURBANCE_KEYS` and the PID gains, e.g. from :func:`maglev_cosim.records.synth.draw_disturbance`:
     ``sigma_y`` is the coloured sensor noise's RMS here). ``noise=False``: no sensor noise, random
     force or quantisation. ``settings``: this emulator's own (:data:`SETTINGS`: ``pid_offset``,
     ``f_y``, ``v_c``, ``method``, ``rtol``). The record's metadata name the emulator, the seed and
     the effects; the sidecar holds the whole configuration."""
     effects = {name: dict(pv) for name, pv in (effects or {}).items()}
-    values: dict[str, float] = {}
-    for name, pv in effects.items():
-        if name not in EFFECTS:
-            raise ValueError(f"effect {name!r} is not in this emulator: choose from {', '.join(EFFECTS)}")
-        for k in pv:
-            if k not in EFFECTS[name]:
-                raise ValueError(f"effect {name} has no parameter {k!r}: its parameters are {', '.join(EFFECTS[name])}")
-        values.update({k: float(v) for k, v in pv.items()})
-    for k in params or {}:
-        if k not in PLANT_PARAMS:
-            raise ValueError(f"unknown plant parameter {k!r}: choose from {', '.join(PLANT_PARAMS)}")
-    dist = dict(disturbance or {})
-    kp, ki, kd = (float(dist.pop(k, v)) for k, v in (("kp", kp), ("ki", ki), ("kd", kd)))
-    bad = sorted(set(dist) - set(DISTURBANCE_KEYS))
-    if bad:
-        raise ValueError(f"unknown disturbance setting(s) {', '.join(bad)}: choose from {', '.join(DISTURBANCE_KEYS)}")
-    if "bits" in dist:
-        dist["bits"] = int(dist["bits"])
+    values, dist, (kp, ki, kd) = checked_settings(effects, params, disturbance, (kp, ki, kd), EFFECTS, PLANT_PARAMS)
     own = dict(settings or {})
     bad = sorted(set(own) - set(SETTINGS))
     if bad:
@@ -484,12 +467,11 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
         cfg = cfg.with_values(sigma_y=0.0, sigma_F_rel=0.0, F_drift_rel=0.0, quantise=False)
     w = _reference(reference, duration, ts, seed, period, cfg)
     sim = simulate(w, cfg, ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max, noise=noise)
-    from .record import write_record       # I/O only
 
     out = Path(out)
     write_record(out, sim["t"], sim["w"], sim["u"], sim["y"], ts=ts, kp=kp, ki=ki, kd=kd, u_min=u_min, u_max=u_max,
                  meta={"reference": reference, **({"period": str(period)} if period else {}), "seed": str(seed),
-                       "source": "maglev-cosim synth --emulator ivp (maglev_cosim.emulator_ivp, written from the paper)",
+                       "source": "maglev-cosim synth --emulator ivp (maglev_cosim.records.emulator_ivp, written from the paper)",
                        "emulator": f"ivp (solve_ivp {cfg.method}, rtol {cfg.rtol:g})",
                        "effects": _effects_text(effects)})
     truth = {"emulator": "ivp", "effects": effects, "params": params or {}, "noise": noise, "seed": seed,
@@ -498,7 +480,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
              "disturbance": {k: getattr(cfg, k) for k in DISTURBANCE_KEYS},
              "settings": {k: getattr(cfg, k) for k in SETTINGS},
              "config": {k: v for k, v in asdict(cfg).items()},
-             "i_limited_share": float(np.mean(sim["i_limited"])),
+             **current_truth(sim["i"], sim["i_limited"] > 0),
              "contact_share": float(np.mean(sim["contact"] != 0))}
     Path(str(out) + ".truth.json").write_text(json.dumps(truth, indent=2, default=float))
     return out

@@ -14,7 +14,7 @@ a real rig has:
 - the paper's PID with its output limits.
 
 The disturbance family is wider than these defaults (``RigConfig`` fields, and
-:func:`maglev_cosim.synth.draw_disturbance` draws from it): white force noise held per sample
+:func:`maglev_cosim.records.synth.draw_disturbance` draws from it): white force noise held per sample
 (``tau_F_noise = 0``) or coloured at any corner, a slowly drifting force offset (``F_drift_rel``,
 an Ornstein-Uhlenbeck process with time constant ``tau_drift``), any sensor noise level, and
 converters of 10 to 16 bits (``bits``).
@@ -148,7 +148,8 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
                  kd: float = 0.01, u_min: float = 0.0, u_max: float = 1.0, noise: bool = True) -> dict[str, np.ndarray]:
     """The rig in closed loop with the paper's PID against reference ``w`` [MU].
 
-    Returns t [s], w, u (D/A value), y (A/D reading) [MU] and the true x [m], v [m/s], i [A]."""
+    Returns t [s], w, u (D/A value), y (A/D reading) [MU], the true x [m], v [m/s], i [A], and
+    i_limited: 1 where the current the D/A value asks for exceeds the amplifier's limit i_max, else 0."""
     c = cfg
     rng = np.random.default_rng(c.seed)
     n = len(w)
@@ -159,11 +160,14 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     def force(i: float, x: float) -> float:
         return kc * i * i / (c.x_0 - x) ** expo
 
-    def command(u_mu: float) -> float:
+    def demand(u_mu: float) -> float:     # the current the amplifier is asked for, before its limit
         volts = c.k_DA * min(max(u_mu, -1.0), 1.0) + c.u_0
         if c.u_dz > 0:
             volts = 0.0 if abs(volts) <= c.u_dz else volts - math.copysign(c.u_dz, volts)
-        return min(max(c.k_i * volts, 0.0), c.i_max)
+        return c.k_i * volts
+
+    def command(u_mu: float) -> float:
+        return min(max(demand(u_mu), 0.0), c.i_max)
 
     # settled start at the first reference value
     x = _position_for(c, float(w[0]))
@@ -203,7 +207,7 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     if r_delay < 1e-12:
         r_delay = 0.0
     dac = np.empty(n)
-    out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
+    out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i", "i_limited")}
     integral, e_prev = u_hold, 0.0
     u_hold_q = round(u_hold / lsb) * lsb if c.quantise else u_hold
 
@@ -265,6 +269,7 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
             u = round(u / lsb) * lsb
         out["u"][k] = u
         dac[k] = u
+        out["i_limited"][k] = 1.0 if demand(dac_at(k - m_delay)) > c.i_max else 0.0
         f_col = a_lp * f_col + math.sqrt(1 - a_lp * a_lp) * sigma_F * noise_f[k]
         f_dr = a_dr * f_dr + math.sqrt(1 - a_dr * a_dr) * sigma_D * noise_d[k]
         fr = f_col + f_dr

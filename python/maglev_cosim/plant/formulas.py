@@ -50,7 +50,7 @@ def _call(fn_name: str, params, *args):
 def point(params: PlantParams | Mapping[str, float] | np.ndarray | None, x: float, i: float | None = None) -> Point:
     """The plant's formulas at ``x`` [m] and current ``i`` [A] (default: the equilibrium current,
     Eq. 8 at rest). ``params``: a :class:`PlantParams`, FMU parameter values over the C defaults,
-    or a parameter vector (:func:`maglev_cosim.fast.param_vector`)."""
+    or a parameter vector (:func:`maglev_cosim.plant.fast.param_vector`)."""
     m = fast._lib()
     out = m.ffi.new("MaglevPoint *")
     _call("maglev_replay_point", params, float(x), math.nan if i is None else float(i), out)
@@ -73,4 +73,9 @@ def position(params: PlantParams | Mapping[str, float] | np.ndarray | None, y: f
     return float(positions(params, [y], t)[0])
 
 
-__all__ = ["Point", "point", "position", "positions"]
+def equilibrium_input(p: Mapping[str, float]) -> float:
+    """D/A input [MU] holding the ball at rest at ``x_start`` (Eq. 8 at rest, Eq. 1, 5)."""
+    return point(p, p["x_start"]).u
+
+
+__all__ = ["Point", "equilibrium_input", "point", "position", "positions"]

@@ -10,7 +10,7 @@ Backends (``backend=``):
 
 - ``"fast"``: the C plant and the C controller in one call through cffi (``c/maglev_replay.c``);
 - ``"fmu"``: the FMU through fmpy, the controller in Python (what any FMI importer sees);
-- ``"reference"``: the independent pure-Python plant (:mod:`maglev_cosim.reference`).
+- ``"reference"``: the independent pure-Python plant (:mod:`maglev_cosim.plant.reference`).
 
 All three return a :class:`LoopResponse`: python-control's ``TimeResponseData`` with the
 reference ``w`` as input, ``y`` and ``u`` as outputs and ``x``, ``v``, ``i`` as states.
@@ -25,10 +25,13 @@ from pathlib import Path
 import control
 import numpy as np
 
-from . import formulas
-from .controllers import Controller, c_settings
-from .controllers import start as start_controller
-from .params import PlantParams, as_params
+from ..plant import formulas
+from ..plant.fast import param_index, param_vector
+from ..plant.params import PlantParams, as_params
+from ..plant.reference import ReferencePlant
+from . import fast_loop
+from .controllers import Controller, c_settings, start as start_controller
+from .fmu import FmuPlant
 from .pid import PID
 
 BACKENDS = ("fast", "fmu", "reference")
@@ -123,17 +126,13 @@ def reference_signal(kind: str, duration: float, ts: float = 1e-3, *, base: floa
 def settled_start(p: PlantParams, x_op: float) -> tuple[PlantParams, float]:
     """The plant at rest at ``x_op`` [m] with the equilibrium current (limited to ``i_max``), and
     the D/A input [MU] that holds it there."""
-    from .fast import param_index
-
     start, u_hold = settled_start_vector(p, x_op)
     return p.replace(x_start=x_op, v_start=0.0, i_start=start[param_index()["i_start"]]), u_hold
 
 
 def settled_start_vector(params: PlantParams | Mapping[str, float] | np.ndarray, x_op: float) -> tuple[np.ndarray, float]:
-    """:func:`settled_start` on a parameter vector (:func:`maglev_cosim.fast.param_vector`), for
+    """:func:`settled_start` on a parameter vector (:func:`maglev_cosim.plant.fast.param_vector`), for
     the replays of a fit: the start state set in a copy of the vector, and the hold input [MU]."""
-    from .fast import param_index, param_vector
-
     pv, k = param_vector(params), param_index()
     i = min(formulas.point(pv, x_op).i, pv[k["i_max"]])
     u_hold = formulas.point(pv, x_op, i).u
@@ -154,7 +153,7 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
     w : array_like
         Reference [MU], one value per controller sample.
     controller : PID, Cascade or StateFeedback, optional
-        The controller (:mod:`maglev_cosim.controllers`; default: the paper's PID, Eq. 24/25, at
+        The controller (:mod:`maglev_cosim.loop.controllers`; default: the paper's PID, Eq. 24/25, at
         1 kHz). A cascade or a state feedback also reads the plant's coil current.
     backend : {"fast", "fmu", "reference"}
         Which implementation of the plant runs the loop (module docstring).
@@ -171,7 +170,7 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
 
     Examples
     --------
-    >>> from maglev_cosim.loop import simulate, reference_signal
+    >>> from maglev_cosim.loop.simulate import simulate, reference_signal
     >>> w = reference_signal("step", 1.0, base=0.394, amplitude=0.05)
     >>> r = simulate("section3", w)
     >>> round(float(r["y"][-1]), 2)
@@ -197,9 +196,7 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
 
 
 def _run_fast(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
-    from . import fast
-
-    return fast.closed_loop(start, w, pid=c, u_hold=u_hold)
+    return fast_loop.closed_loop(start, w, pid=c, u_hold=u_hold)
 
 
 def _stepwise(plant_outputs, set_input, step, c: Controller, w: np.ndarray, u_hold: float) -> dict[str, np.ndarray]:
@@ -219,15 +216,11 @@ def _stepwise(plant_outputs, set_input, step, c: Controller, w: np.ndarray, u_ho
 
 
 def _run_fmu(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
-    from .fmu import FmuPlant
-
     with FmuPlant({**start.to_start_values(), "u": u_hold}, fmu=fmu) as plant:
         return _stepwise(plant.outputs, plant.set_input, plant.step, c, w, u_hold)
 
 
 def _run_reference(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
-    from .reference import ReferencePlant
-
     plant = ReferencePlant(start)
     plant.reset(u_hold)
 

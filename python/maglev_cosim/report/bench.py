@@ -16,6 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
+# Imported inside a function, on purpose: resource (POSIX only; Windows falls back to process_time).
+from ..diagnosis import diagnose as run_diagnosis
+from ..loop.checks import comm_step_study, staircase_input
+from ..loop.pid import PID
+from ..loop.simulate import reference_signal, simulate
+from ..plant.linear import operating_point
+from ..plant.params import get_params
+from ..records.record import read_record
+from ..records.synth import synth_record
+
 
 def _best_of(fn, repeat: int) -> float:
     best = float("inf")
@@ -38,12 +48,6 @@ def _cpu_seconds() -> float:
 
 def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, diagnose: bool = True,
               json_path: Path | None = None) -> dict:
-    from .checks import comm_step_study, staircase_input
-    from .linear import operating_point
-    from .loop import reference_signal, simulate
-    from .params import get_params
-    from .pid import PID
-
     p = get_params("section3")
     pid = PID()
     n = int(round(record_seconds / pid.ts))
@@ -83,10 +87,6 @@ def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, di
               "comm_step": {k: {f"{h:g}": v for h, v in r.items()} for k, r in study.items()}}
 
     if diagnose:
-        from .diagnosis import diagnose as run_diagnosis
-        from .record import read_record
-        from .synth import synth_record
-
         cases = {"one effect (delay)": {"delay": {"T_d": 0.0025}},
                  "two effects (delay, pickup)": {"delay": {"T_d": 0.002},
                                                  "periodic_disturbance": {"A_d": 0.008, "f_d": 50.0, "phi_d": 0.0}}}

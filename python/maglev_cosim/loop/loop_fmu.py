@@ -1,7 +1,7 @@
 """The closed loop in any FMI tool, without Python: plant FMU + controller FMU + step reference.
 
 Two ready files, both made from the same settings (:func:`loop_settings`, the start of
-:func:`maglev_cosim.loop.simulate`: the plant settled at rest at ``x_op`` and the PID's integrator
+:func:`maglev_cosim.loop.simulate.simulate`: the plant settled at rest at ``x_op`` and the PID's integrator
 holding the equilibrium input), so that they run what ``loop.simulate`` runs:
 
 - ``maglev_loop.ssp``: SSP 1.0, ``SystemStructure.ssd`` with the components ``plant``
@@ -18,7 +18,7 @@ controller's new output (Gauss-Seidel, controller first, step ``ts``: the contai
 mode) applies ``u[k] = PID(w[k] - y[k])`` over ``[t_k, t_k + ts]``, as ``loop.simulate`` does. A
 master that steps both on the values of the previous point (Jacobi) adds one sample of delay.
 
-``python -m maglev_cosim.loopfmu BUILD_DIR`` writes both into ``BUILD_DIR`` from the
+``python -m maglev_cosim.loop.loop_fmu BUILD_DIR`` writes both into ``BUILD_DIR`` from the
 ``maglev.fmu`` and ``maglev_pid.fmu`` there (``scripts/setup.sh`` runs it).
 """
 
@@ -33,10 +33,11 @@ import zipfile
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from . import formulas
-from .loop import X_OP, settled_start
-from .params import PlantParams, as_params
+# Imported inside a function, on purpose: fmu_manipulation_toolbox (optional: the `test` extra).
+from ..plant import formulas
+from ..plant.params import PlantParams, as_params
 from .pid import ANTI_WINDUP, PID
+from .simulate import X_OP, settled_start
 
 SSD_NS = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC_NS = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -195,7 +196,7 @@ def write_container(out: str | Path, plant_fmu: str | Path, pid_fmu: str | Path,
 def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if len(args) != 1:
-        print("usage: python -m maglev_cosim.loopfmu BUILD_DIR\n"
+        print("usage: python -m maglev_cosim.loop.loop_fmu BUILD_DIR\n"
               "writes BUILD_DIR/maglev_loop.ssp and BUILD_DIR/maglev_loop.fmu from BUILD_DIR/maglev.fmu and "
               "BUILD_DIR/maglev_pid.fmu", file=sys.stderr)
         return 2

@@ -15,13 +15,13 @@ unit's typical magnitude when the start is 0). ``min``/``max`` are the C table's
 value outside them is exactly what ``fmi2SetReal`` refuses (``tests/test_model_description.py``).
 
 ``generationDateAndTime`` is :data:`GENERATION_DATE`, a constant, so that regenerating never
-changes the committed files; ``python -m maglev_cosim.model_description`` uses
+changes the committed files; ``python -m maglev_cosim.plant.model_description`` uses
 ``$SOURCE_DATE_EPOCH`` instead when it is set (reproducible-builds convention), and the drift test
 then fails until the constant is updated to match, on purpose.
 
 ``tests/test_model_description.py`` fails when the committed files differ from what the binary
 says. Regenerate, from the repository root after ``scripts/setup.sh``, with
-``python -m maglev_cosim.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``
+``python -m maglev_cosim.plant.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``
 and ``... --fmi 3 build/fmu/binaries/linux64/maglev.so modelDescription3.xml``; the controller
 FMU's with ``... --pid build/maglev_pid.so modelDescription_pid.xml`` and
 ``... --pid --fmi 3 build/maglev_pid.so modelDescription_pid3.xml``.
@@ -40,7 +40,7 @@ from xml.sax.saxutils import quoteattr
 
 import cffi
 
-from ._resources import c_dir
+from .._resources import c_dir
 
 GUID = "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 MODEL_IDENTIFIER = "maglev"
@@ -386,8 +386,8 @@ def main(argv: list[str] | None = None) -> int:
         fmi_version = int(args[1])
         args = args[2:]
     if len(args) not in (1, 2) or fmi_version not in (2, 3):
-        print("usage: python -m maglev_cosim.model_description [--fmi 2|3] PATH/TO/maglev.so [OUT.xml]\n"
-              "       python -m maglev_cosim.model_description --pid [--fmi 2|3] PATH/TO/maglev_pid.so [OUT.xml]\n"
+        print("usage: python -m maglev_cosim.plant.model_description [--fmi 2|3] PATH/TO/maglev.so [OUT.xml]\n"
+              "       python -m maglev_cosim.plant.model_description --pid [--fmi 2|3] PATH/TO/maglev_pid.so [OUT.xml]\n"
               "writes OUT.xml (default: modelDescription.xml in the current folder)", file=sys.stderr)
         return 2
     target = Path(args[1] if len(args) == 2 else "modelDescription.xml")

@@ -3,7 +3,7 @@
 Same equations and limits as docs/model.md, written apart from the C plant and integrated by a
 different kind of method: scipy's ``solve_ivp`` (DOP853, tight tolerances) on the full state
 ``[x, v, i, F, x_s]`` (``x_s``: the position the sensor sees through its lag ``T_y``) between input breakpoints, with stop impacts and releases as terminal events.
-Nothing here calls C. :func:`maglev_cosim.loop.simulate` runs it in closed loop
+Nothing here calls C. :func:`maglev_cosim.loop.simulate.simulate` runs it in closed loop
 (``backend="reference"``).
 """
 

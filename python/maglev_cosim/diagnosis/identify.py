@@ -17,7 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from .record import Record
+from ..plant.formulas import positions
+from ..records.record import Record
+from .replay import replay
 
 #: The paper's values (Sec. 3.4.2, 3.4.3).
 PAPER = {
@@ -88,7 +90,6 @@ def equilibrium_points(rec: Record, params: dict[str, float]) -> tuple[np.ndarra
                          "the paper's methods need equilibrium points at two positions at least")
     y = np.array([s.y for s in seg])
     u = np.array([s.u for s in seg])
-    from .formulas import positions
 
     return positions(params, y), params["k_DA"] * u + params["u_0"]   # Eq. 12/13 inverted, Eq. 1
 
@@ -121,8 +122,6 @@ def least_squares_eq14(x: np.ndarray, u_v: np.ndarray, m_k: float, g: float) -> 
 def simplex_kfv(rec: Record, params: dict[str, float], *, k_fv0: float = 0.03) -> dict[str, float]:
     """Nelder-Mead on ``k_FV`` (Sec. 3.4.3): the closed-loop replay of the record (fast path) against
     the measured reading, least squares of ``y`` [MU]."""
-    from .replay import replay
-
     def cost(z: np.ndarray) -> float:
         sim = replay(rec, {**params, "k_FV": abs(float(z[0]))})
         return float(np.mean((rec.y - sim["y"]) ** 2))

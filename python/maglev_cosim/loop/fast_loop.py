@@ -1,0 +1,119 @@
+"""The closed loop (plant + any controller) and the prediction-error replay in one C call each:
+the half of the fast path (:mod:`maglev_cosim.plant.fast`, ``c/maglev_replay.h``) that takes a
+controller (:data:`maglev_cosim.loop.controllers.Controller`), converted here to its C settings."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from types import SimpleNamespace
+
+import numpy as np
+
+from ..plant import fast, formulas
+from ..plant.params import PlantParams
+from .controllers import Controller, c_settings
+from .pid import PID
+
+
+def _controller(m: SimpleNamespace, controller):
+    """Any controller (:data:`maglev_cosim.loop.controllers.Controller`) as a C ``MaglevController``."""
+    return m.ffi.new("MaglevController *", c_settings(controller or PID()))
+
+
+def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray, *,
+                pid: Controller | None = None, u_hold: float | None = None, du: np.ndarray | None = None,
+                dF: np.ndarray | None = None, dy: np.ndarray | None = None, y_step: float = 0.0,
+                u_step: float = 0.0) -> dict[str, np.ndarray]:
+    """The closed loop (plant + controller) over reference ``w`` [MU] in one C call: the low
+    level of :func:`maglev_cosim.loop.simulate.simulate` (``backend="fast"``), which most callers want.
+
+    ``params``: a :class:`PlantParams` or FMU parameter values over the C defaults, the start
+    state included. ``pid``: the controller, any :data:`maglev_cosim.loop.controllers.Controller`
+    (default: the paper's PID, Eq. 24/25). ``u_hold`` [MU]: the settled
+    input before t = 0 (default: the equilibrium input at ``x_start``). ``du`` [MU], ``dF`` [N],
+    ``dy`` [MU]: signals injected at the actuator (added to the controller's output on its way to
+    the plant), on the ball (a force held over each sample) and at the sensor (added to the
+    reading), each of the length of ``w`` or None. ``y_step``, ``u_step`` [MU]: the A/D and D/A
+    steps to which the reading and the controller's output are rounded (0: no rounding). Returns arrays ``t`` [s], ``w``, ``u`` (the
+    controller's output), ``y`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A]."""
+    m = fast._lib()
+    pv = fast._param_vector(fast._as_mapping(params))
+    pid = pid or PID()
+    w = np.ascontiguousarray(w, dtype=float)
+    n = len(w)
+    if u_hold is None:
+        u_hold = formulas.equilibrium_input(dict(zip(fast._defaults(), pv)))
+    out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
+    cpid = _controller(m, pid)
+    msg = m.ffi.new("char[256]")
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    inj = []
+    for name, a in (("du", du), ("dF", dF), ("dy", dy)):
+        if a is None:
+            inj.append(m.ffi.NULL)
+            continue
+        a = np.ascontiguousarray(a, dtype=float)
+        if a.shape != (n,):
+            raise ValueError(f"{name} has shape {a.shape}, the reference has {n} samples")
+        inj.append(ptr(a))
+    rc = m.lib.maglev_replay_closed_loop_injected(ptr(pv), cpid, ptr(w), n, float(u_hold), *inj,
+                                                  float(y_step), float(u_step),
+                                                  *(ptr(out[k]) for k in ("u", "y", "x", "v", "i")), msg, 256)
+    if rc != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return {"t": np.arange(n) * pid.ts, "w": w, **out}
+
+
+def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w: np.ndarray, y: np.ndarray,
+            u: np.ndarray, u_hold: float, *, q_force: float, f_force: float, r_sensor: float, horizon: int,
+            stride: int = 1) -> dict[str, np.ndarray]:
+    """The prediction-error replay in one C call (``maglev_replay_predict``, ``c/maglev_replay.h``):
+    an extended Kalman filter on the plant, driven by the measured ``u`` and corrected by the
+    measured ``y`` [MU], predicting the closed loop ``horizon`` samples ahead from every
+    ``stride``-th sample. ``q_force`` [N] and ``f_force`` [Hz]: RMS and corner of the random force
+    on the ball; ``r_sensor`` [MU]: RMS of the sensor noise. Returns arrays ``y_pred``, ``u_pred``
+    (NaN where no prediction ends), ``innov`` and ``innov_var`` (one-step innovations [MU] and
+    their variances [MU²])."""
+    m = fast._lib()
+    pv = fast._param_vector(fast._as_mapping(params))
+    arrays = [np.ascontiguousarray(a, dtype=float) for a in (w, y, u)]
+    n = len(arrays[0])
+    if any(len(a) != n for a in arrays):
+        raise ValueError("w, y and u must have the same length")
+    out = {k: np.empty(n) for k in ("y_pred", "u_pred", "innov", "innov_var")}
+    filt = fast._filter(m, q_force, f_force, r_sensor, horizon, stride)
+    msg = m.ffi.new("char[256]")
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    rc = m.lib.maglev_replay_predict(ptr(pv), _controller(m, pid), filt,
+                                     *(ptr(a) for a in arrays), n, float(u_hold),
+                                     *(ptr(out[k]) for k in ("y_pred", "u_pred", "innov", "innov_var")), msg, 256)
+    if rc != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return out
+
+
+def pid_only(pid: PID, w: np.ndarray, y: np.ndarray, u_hold: float) -> np.ndarray:
+    """The C PID alone over given ``w`` and ``y`` [MU], settled at ``u_hold`` [MU]: its outputs [MU]."""
+    return control(pid, w, y, None, u_hold)
+
+
+def control(controller: Controller, w: np.ndarray, y: np.ndarray, current: np.ndarray | None, u_hold: float,
+            x0: tuple[float, float, float] | None = None) -> np.ndarray:
+    """Any controller alone (``maglev_replay_control``) over given reference ``w`` and reading ``y``
+    [MU] and coil ``current`` [A] (a cascade or a state feedback needs it), settled at ``u_hold``
+    [MU] with the plant at ``x0`` = (position [m], velocity [m/s], current [A]): its outputs [MU]."""
+    m = fast._lib()
+    w = np.ascontiguousarray(w, dtype=float)
+    y = np.ascontiguousarray(y, dtype=float)
+    cur = None if current is None else np.ascontiguousarray(current, dtype=float)
+    if len(y) != len(w) or (cur is not None and len(cur) != len(w)):
+        raise ValueError("w, y and the current must have the same length")
+    u = np.empty(len(w))
+    msg = m.ffi.new("char[256]")
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    x0a = None if x0 is None else np.ascontiguousarray(x0, dtype=float)
+    if m.lib.maglev_replay_control(_controller(m, controller), ptr(w), ptr(y), m.ffi.NULL if cur is None else ptr(cur),
+                                   len(w), float(u_hold), m.ffi.NULL if x0a is None else ptr(x0a), ptr(u), msg,
+                                   256) != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return u

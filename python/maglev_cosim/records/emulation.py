@@ -1,0 +1,49 @@
+"""What the two emulators (:mod:`maglev_cosim.records.emulator` and :mod:`maglev_cosim.records.emulator_ivp`) share
+that is not physics: the check of a synthetic record's settings, and the truth sidecar's
+figures of the coil current. Imports nothing of the package, so the independent emulator stays
+apart from the model (``tests/test_emulator_ivp.py``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: The rig noise and converter settings a synthetic record takes (:func:`maglev_cosim.records.synth.draw_disturbance`).
+DISTURBANCE_KEYS = ("sigma_y", "sigma_F_rel", "tau_F_noise", "F_drift_rel", "tau_drift", "bits")
+
+
+def checked_settings(effects: dict[str, dict[str, float]], params: dict[str, float] | None,
+                     disturbance: dict[str, float] | None, gains: tuple[float, float, float],
+                     known_effects: dict[str, tuple[str, ...]], plant_params: tuple[str, ...],
+                     ) -> tuple[dict[str, float], dict[str, float], tuple[float, float, float]]:
+    """A synthetic record's settings, checked against what its emulator knows (``known_effects``,
+    ``plant_params``, :data:`DISTURBANCE_KEYS`): the effects' parameter values merged, the
+    disturbance settings without the PID gains (``bits`` as an int), and the gains ``(kp, ki, kd)``,
+    which a disturbance draw may override. Raises ``ValueError`` naming what is unknown."""
+    values: dict[str, float] = {}
+    for name, pv in effects.items():
+        if name not in known_effects:
+            raise ValueError(f"effect {name!r} is not in this emulator: choose from {', '.join(known_effects)}")
+        for k in pv:
+            if k not in known_effects[name]:
+                raise ValueError(f"effect {name} has no parameter {k!r}: its parameters are "
+                                 f"{', '.join(known_effects[name])}")
+        values.update({k: float(v) for k, v in pv.items()})
+    for k in params or {}:
+        if k not in plant_params:
+            raise ValueError(f"unknown plant parameter {k!r}: choose from {', '.join(plant_params)}")
+    dist = dict(disturbance or {})
+    gains = tuple(float(dist.pop(k, v)) for k, v in zip(("kp", "ki", "kd"), gains))
+    bad = sorted(set(dist) - set(DISTURBANCE_KEYS))
+    if bad:
+        raise ValueError(f"unknown disturbance setting(s) {', '.join(bad)}: choose from {', '.join(DISTURBANCE_KEYS)}")
+    if "bits" in dist:
+        dist["bits"] = int(dist["bits"])
+    return values, dist, gains
+
+
+def current_truth(i: np.ndarray, limited: np.ndarray) -> dict:
+    """What a record's truth sidecar says of the coil current [A], for benchmarks that plant a
+    current limit by the share of samples it acts in: the percentiles 0..100 of the current, and the
+    share of the samples in which the amplifier is at its limit ``i_max``."""
+    return {"current_percentiles": np.percentile(i, np.arange(101)).tolist(),
+            "i_limited_share": float(np.mean(limited))}
