@@ -12,6 +12,7 @@ import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
+from scipy.stats import chi2
 
 from ..plant.formulas import positions
 from .problem import Coord, Parameterization, Problem, fit, residuals
@@ -301,9 +302,6 @@ def periodic_evidence(prob: Problem, values: Mapping[str, float]) -> tuple[bool,
     standing :data:`COMB_PROMINENCE` times above the spectrum between harmonics and at least
     :data:`COMB_SHARE` of the line at ``n``. A pure tone that happens to sit on a harmonic (mains at
     50 Hz under a 0.6 s square) towers over the comb and stays."""
-    from scipy.stats import chi2
-
-
     rec = prob.rec
     vals = {**values}
     A, phi, f = float(vals["A_d"]), float(vals["phi_d"]), float(vals["f_d"])

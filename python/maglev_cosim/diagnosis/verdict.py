@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.signal import lfilter
+from scipy.stats import chi2
 
 from ..records.record import Record
 from .effects import BASELINE, CATALOGUE
@@ -266,8 +267,6 @@ def reference_share(rec: Record, innov: np.ndarray, skip: int = 200) -> dict:
         return {"r2": 0.0, "statistic": 0.0, "threshold": math.inf}
     coef, *_ = np.linalg.lstsq(X, e, rcond=None)
     r2 = float(1.0 - np.var(e - X @ coef) / var)
-    from scipy.stats import chi2
-
     return {"r2": r2, "statistic": len(e) * r2, "threshold": float(chi2.ppf(1 - REFERENCE_ALPHA, X.shape[1] - 1))}
 
 
