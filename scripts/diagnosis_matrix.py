@@ -146,6 +146,10 @@ def _describe(dist: dict) -> str:
             f"pid={dist.get('kp', 2):.2f}/{dist.get('ki', 2.97):.2f}/{dist.get('kd', 0.01):.4f}")
 
 
+#: The effects the benchmark's diagnoses try (None: the default catalogue; ``--also`` adds to it).
+FAMILY_EFFECTS: list[str] | None = None
+
+
 EMULATOR_NAMES = {"rig": "the project's emulator (`maglev_cosim.records.emulator`)",
                   "ivp": "the independent emulator (`maglev_cosim.records.emulator_ivp`, written from the paper)"}
 
@@ -162,7 +166,7 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n
         path = SYNTH(tmp / f"n{k}.csv", seed=seed, disturbance=dist)
         rec = read_record(path, plausibility="warn")
         t0 = time.perf_counter()
-        d = diagnose(rec)
+        d = diagnose(rec, effects=FAMILY_EFFECTS)
         dt = time.perf_counter() - t0
         after_null[seed] = {"free_run": d.after["rms_u"], "prediction": d.verdict.after.prediction_rms["u"],
                             "prediction_y": d.verdict.after.prediction_rms["y"],
@@ -193,7 +197,7 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n
         path = SYNTH(tmp / "p.csv", seed=seed, disturbance=dist, effects=planted)
         rec = read_record(path, plausibility="warn")
         t0 = time.perf_counter()
-        d = diagnose(rec)
+        d = diagnose(rec, effects=FAMILY_EFFECTS)
         dt = time.perf_counter() - t0
         null = after_null.get(seed)
         ratio = d.after["rms_u"] / null["free_run"] if null else float("nan")
@@ -314,9 +318,14 @@ def main() -> None:
                     help="with --family: Coulomb friction on the first F draws (default: as --power)")
     ap.add_argument("--write-docs", action="store_true",
                     help="write the table into its section of docs/benchmarks.md (scripts/benchdoc.py)")
+    ap.add_argument("--also", action="append", default=[], metavar="EFFECT",
+                    help="with --family: an opt-in catalogue effect tried beside the default ones, to measure "
+                         "what putting it in the default catalogue would do (repeatable)")
     a = ap.parse_args()
     t_start = time.perf_counter()
-    global SYNTH
+    global SYNTH, FAMILY_EFFECTS
+    if a.also:
+        FAMILY_EFFECTS = [*DEFAULT_EFFECTS, *(e for e in a.also if e not in DEFAULT_EFFECTS)]
     supported = None
     if a.setting and a.emulator != "ivp":
         ap.error("--setting belongs to --emulator ivp")

@@ -32,7 +32,7 @@ from .metrics import nrmse_fit
 from .problem import Parameterization, Problem, cost_on, fit, residuals
 from .replay import HORIZON_S, baseline_params, estimate_noise
 from .residual import analyse_residual, effective_samples, noise_floor
-from .verdict import Verdict, conclude
+from .verdict import Verdict, conclude, on_bounds
 
 MAX_EFFECTS = 3
 
@@ -187,19 +187,34 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str) ->
     selected in earlier rounds stay in the model (in ``current``) while this one is fitted."""
     t0 = time.process_time()
     eff = CATALOGUE[effect_name]
+    origin = {p: prob.base[p] for p in BASELINE.params}     # where the calibration started from
     prob = prob.with_base(current)
-    # choose the best start with the baseline held, then fit everything from it
-    best, best_cost, best_vals = None, math.inf, None
-    for z in eff.starts(prob, current):
-        vals = eff.start_values(z, prob, current)
-        c = float(np.mean(residuals(prob, vals) ** 2))
-        if c < best_cost:
-            best, best_cost, best_vals = z, c, vals
-    best = eff.prefit(prob, current, list(best))
-    # the start's values besides the fitted coordinates (say the force exponent's pivot) stay
-    f = fit(prob.with_base(best_vals), [BASELINE, eff], [BASELINE.to_coords(best_vals), best])
-    return {"effect": effect_name, "values": {**current, **best_vals, **f.values}, "fit_cost": f.cost,
-            "nfev": f.nfev, "cpu_s": time.process_time() - t0}
+
+    def from_best_start(cur: dict[str, float]):
+        # choose the best start with the baseline held, then fit everything from it
+        best, best_cost, best_vals = None, math.inf, None
+        for z in eff.starts(prob, cur):
+            vals = eff.start_values(z, prob, cur)
+            c = float(np.mean(residuals(prob, vals) ** 2))
+            if c < best_cost:
+                best, best_cost, best_vals = z, c, vals
+        best = eff.prefit(prob, cur, list(best))
+        # the start's values besides the fitted coordinates (say the force exponent's pivot) stay
+        f = fit(prob.with_base(best_vals), [BASELINE, eff], [BASELINE.to_coords(best_vals), best])
+        return {**cur, **best_vals, **f.values}, f
+
+    values, f = from_best_start(current)
+    nfev, retried = f.nfev, False
+    if (eff.is_off(values) and eff.absorbed_by) or on_bounds(values)[0]:
+        # The baseline may have absorbed the effect (a D/A offset that shifted to mimic a current
+        # limit), so that from its calibrated values the effect cannot act: retried with the
+        # baseline from where its calibration started, the effect's starts placed anew.
+        again, f2 = from_best_start({**current, **origin})
+        nfev += f2.nfev
+        if f2.cost < f.cost or (on_bounds(values)[0] and not on_bounds(again)[0]):
+            values, f, retried = again, f2, True
+    return {"effect": effect_name, "values": values, "fit_cost": f.cost, "nfev": nfev, "retried": retried,
+            "cpu_s": time.process_time() - t0}
 
 
 def _worker(args: tuple[Problem, dict[str, float], str]) -> dict:
@@ -291,6 +306,71 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
         if pool:
             pool.shutdown()
     return Search(selected, current, candidates, rounds)
+
+
+def _search_bound_params(values: Mapping[str, float]) -> list[str]:
+    """Calibrated parameters within :data:`~.verdict.ON_BOUND` of a search bound (as
+    :func:`~.verdict.on_bounds` names them, physical limits aside)."""
+    text = on_bounds(values)[0]
+    return [c.name for c in BASELINE.coords if any(t.startswith(f"{c.name} = ") for t in text)]
+
+
+def retry_on_bounds(prob: Problem, found: Search, effects: Sequence[str], hold_mask: np.ndarray,
+                    say: Say) -> Search | None:
+    """A model whose calibrated parameter ends on a search bound (say the D/A offset ``u_0``
+    that absorbed a current limit and ran to 1 V) is refitted from other starts before the
+    calibration may be called failed: the baseline from where its calibration started, and the
+    model's values with the parameters on a bound reset there; each with the selected effects
+    alone, and with each other candidate effect present (its starts placed anew). Among the fits
+    that leave every search bound, the selected effects alone are kept unless a candidate passes
+    the acceptance test against them on the held-out blocks. None when nothing leaves the bounds."""
+    names = _search_bound_params(found.values)
+    if not names:
+        return None
+    say(f"the model's calibration ended on a bound ({', '.join(names)}): refitting from other starts, "
+        "with each candidate effect present")
+    origin = {p: prob.base[p] for p in BASELINE.params}
+    starts = [{**found.values, **origin}, {**found.values, **{n: origin[n] for n in names}}]
+    parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in found.selected)]
+    alone: dict | None = None
+    for st in starts:
+        f = fit(prob.with_base(st), parts, [p.to_coords(st) for p in parts], max_nfev=100)
+        vals = {**st, **f.values}
+        if not on_bounds(vals)[0]:
+            hold = cost_on(prob, vals, hold_mask)
+            if alone is None or hold < alone["hold"]:
+                alone = {"values": vals, "hold": hold}
+    hold_before = alone["hold"] if alone else cost_on(prob, found.values, hold_mask)
+    best: tuple[dict, dict] | None = None
+    for e in effects:
+        if e in found.selected:
+            continue
+        for st in starts:
+            res = fit_candidate(prob, st, e)
+            if on_bounds(res["values"])[0]:
+                continue
+            entry, vals = judge(prob, hold_mask, hold_before, res, len(found.rounds) + 1)
+            entry["retry"] = True
+            say(f"  {e} from another start: {', '.join(f'{p} = {v:.4g}' for p, v in entry['parameters'].items())}; "
+                f"held-out cost change {-100 * entry['held_out_gain']:+.1f} % -> "
+                + ("accepted" if entry["accepted"] else "rejected"))
+            found.candidates.append(entry)
+            if entry["accepted"] and (best is None or entry["held_out_cost_after"] < best[0]["held_out_cost_after"]):
+                best = (entry, vals)
+    if best is not None:
+        entry, vals = best
+        entry["selected"] = True
+        selected = [*found.selected, entry["effect"]]
+        parts = [BASELINE, *(CATALOGUE[e] for e in selected)]
+        conv = fit(prob.with_base(vals), parts, [p.to_coords(vals) for p in parts], max_nfev=100)
+        say(f"added {entry['effect']}, whose fit leaves the calibration inside its bounds")
+        found.rounds.append({"round": entry["round"], "held_out_cost_before": hold_before,
+                             "accepted": [entry["effect"]], "retry": True})
+        return Search(selected, {**vals, **conv.values}, found.candidates, found.rounds)
+    if alone is not None:
+        say("the selected effects, from another start, leave the calibration inside its bounds")
+        return Search(list(found.selected), alone["values"], found.candidates, found.rounds)
+    return None
 
 
 # ----------------------------------------------------------------------------- 3. refit
@@ -402,7 +482,7 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
         The closed-loop record.
     effects : sequence of str, optional
         The catalogue entries to consider (default: :data:`~.effects.DEFAULT_EFFECTS`, the
-        catalogue but for the opt-in ``coulomb_friction`` and ``sensor_lag``).
+        catalogue but for the opt-in ``sensor_lag`` and ``amplifier_dead_zone``).
     workers : int, optional
         Processes for the candidate fits (default: 2, or 1 on a one-core machine).
     progress : callable, optional
@@ -417,11 +497,26 @@ def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int 
         return _diagnose(rec, effects, workers, progress, start)
 
 
+def _unless_on_bounds(prob: Problem, found: Search, final_values: dict, unc: dict, effects: Sequence[str],
+                      fit_mask: np.ndarray, say: Say) -> tuple[Search, dict, dict]:
+    """The final model, retried from other starts (:func:`retry_on_bounds`) when its calibration
+    ended on a search bound; kept as it is when the retry leaves no bound either."""
+    if not _search_bound_params(final_values):
+        return found, final_values, unc
+    again = retry_on_bounds(prob, replace(found, values={**found.values, **final_values}), effects, ~fit_mask, say)
+    if again is None:
+        return found, final_values, unc
+    values, unc2 = refit(prob, again.values, again.selected, say)
+    if _search_bound_params(values):
+        return found, final_values, unc
+    return again, values, unc2
+
+
 def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, progress: Say | None,
               start: Mapping[str, float] | None) -> Diagnosis:
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
-    effects = list(DEFAULT_EFFECTS) if effects is None else list(effects)
+    effects = list(DEFAULT_EFFECTS) if effects is None else list(dict.fromkeys(effects))   # each tried once
     for e in effects:
         if e not in CATALOGUE:
             raise ValueError(f"unknown effect {e!r}: choose from {', '.join(CATALOGUE)}")
@@ -433,6 +528,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
     cal = calibrate(rec, base, fit_mask, say)
     found = search(cal.prob, dict(cal.values), effects, ~fit_mask, workers, say)
     final_values, unc = refit(cal.prob, found.values, found.selected, say)
+    found, final_values, unc = _unless_on_bounds(cal.prob, found, final_values, unc, effects, fit_mask, say)
     sim_after = cal.prob.free_run(final_values)
     fit_y = nrmse_fit(rec.y, sim_after["y"])
     if fit_y < FREE_RUN_MIN_FIT:
@@ -443,6 +539,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
         cal = calibrate_by_prediction(rec, base, fit_mask, cal, say)
         found = search(cal.prob, dict(cal.values), effects, ~fit_mask, workers, say)
         final_values, unc = refit(cal.prob, found.values, found.selected, say)
+        found, final_values, unc = _unless_on_bounds(cal.prob, found, final_values, unc, effects, fit_mask, say)
         sim_after = cal.prob.free_run(final_values)
     before, after = rms(rec, cal.sim), rms(rec, sim_after)
     residual_after = analyse_residual(rec, sim_after)

@@ -52,7 +52,7 @@ from scipy.stats import chi2
 
 from ..records.record import Record
 from .effects import BASELINE, CATALOGUE
-from .locate import generic_corrections, locate
+from .locate import best_per_location, generic_corrections, locate
 from .metrics import nrmse_fit
 from .replay import HORIZON_S, NoiseModel, estimate_noise, predict, replay_injected
 
@@ -95,6 +95,20 @@ REFERENCE_ALPHA = 1e-4
 REFERENCE_SHARE = 0.02
 #: Simulated records over which :func:`floor_check` averages.
 FLOOR_DRAWS = 4
+
+def generic_evidence(corrections: Sequence) -> dict[str, dict]:
+    """Per location, the figures of its best generic correction (:mod:`.locate`) and, at the
+    mechanics, of its force of gap and velocity whatever its rank (the friction-like step, the
+    damping): numbers for ``location_evidence``, the curves stay in the figure."""
+    out: dict[str, dict] = {}
+    for loc, c in best_per_location(list(corrections)).items():
+        out[loc] = {"form": c.form, "signal": c.signal, "held_out_gain": c.held_out_gain, "fit_gain": c.fit_gain}
+    for c in corrections:
+        if c.form == "state":
+            figs = {k: v for k, v in c.shape.items() if isinstance(v, (int, float)) or k == "coefficients_si"}
+            out.setdefault(c.location, {})[f"{c.form} ({c.signal})"] = {"held_out_gain": c.held_out_gain, **figs}
+    return out
+
 
 def location_of(effect: str) -> str:
     """``actuator``, ``mechanics`` or ``sensor``: where the effect acts on the loop."""
@@ -463,6 +477,8 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
                            else "; where it enters is undetermined"))
     else:
         verdict = "explained" if selected else "no effect"
+    for loc, fig in generic_evidence(corrections).items():
+        evidence.setdefault(loc, {})["generic_correction"] = fig
     judged = {"floor": floor, "force_growth": growth, "reference_share": ref_share, "location": location,
               "thresholds": {"floor_ratio": FLOOR_RATIO, "force_growth": FORCE_GROWTH,
                              "reference_alpha": REFERENCE_ALPHA, "reference_share": REFERENCE_SHARE}}

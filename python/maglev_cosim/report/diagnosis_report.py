@@ -227,14 +227,34 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
 
 
 _SIGNAL_AXIS = {"u": ("controller output u [MU]", 1.0), "x": ("ball position x [mm]", 1e3),
-                "y": ("reading y [MU]", 1.0), "F": ("force F [N]", 1.0), "i": ("current i [A]", 1.0)}
+                "y": ("reading y [MU]", 1.0), "F": ("force F [N]", 1.0), "i": ("current i [A]", 1.0),
+                "v": ("ball velocity v [mm/s]", 1e3)}
+
+
+def _friction_text(shape: Mapping) -> str:
+    """The mechanics' force of gap and velocity in two figures: its step against the motion at
+    v = 0 (F_c of -F_c*tanh(v/v_s)) and its damping."""
+    return f"F_c = {shape['coulomb_force_N'] * 1e3:.3g} mN, damping {shape['damping_N_s_per_m']:.3g} N.s/m"
 
 
 def _location_plot(corrections, out: Path, plt, model: str = "") -> str:
     """The best generic correction at each location: the spline's curve over its signal, or the
     filter's frequency response; its held-out gain in the title."""
     best = best_per_location(corrections)
-    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
+    # the mechanics' force of gap and velocity, drawn against the velocity: a friction shows as a
+    # step at v = 0 (issue 22, item 3), whichever correction is the mechanics' best
+    motion = next((c for c in corrections if c.location == "mechanics" and c.form == "state"), None)
+    extra = motion is not None and best.get("mechanics") is not motion
+    fig, ax = plt.subplots(1, 4 if extra else 3, figsize=(17 if extra else 13, 3.8))
+    if extra:
+        a = ax[3]
+        a.plot(np.asarray(motion.shape["x"]) * 1e3, np.asarray(motion.shape["correction"]) * 1e3, color="tab:red")
+        a.axvline(0.0, color="0.6", lw=0.8)
+        a.set_xlabel(_SIGNAL_AXIS["v"][0])
+        a.set_ylabel("force on the ball at the mean gap [mN]")
+        a.set_title(f"mechanics: force of gap and velocity\nremoves {100 * motion.held_out_gain:.1f} %; "
+                    + _friction_text(motion.shape), fontsize=9)
+        a.grid(alpha=0.3)
     for a, loc in zip(ax, LOCATIONS):
         c = best.get(loc)
         if c is None:
@@ -254,7 +274,9 @@ def _location_plot(corrections, out: Path, plt, model: str = "") -> str:
             b.semilogx(sh["f_hz"], sh["magnitude"], color="tab:blue")
             b.set_ylabel("gain", color="tab:blue")
         a.set_title(f"{loc}: {c.form} in {c.signal}, removes {100 * c.held_out_gain:.1f} %\nof the held-out "
-                    "residual", fontsize=9)
+                    "residual" + ("\n" + _friction_text(sh) if c is motion else ""), fontsize=9)
+        if c is motion:
+            a.axvline(0.0, color="0.6", lw=0.8)
         a.grid(alpha=0.3)
     fig.suptitle("Where the residual enters: the best generic correction at each place in the loop"
                  + ("\n" + model if model else ""), fontsize=10)
