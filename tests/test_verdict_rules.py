@@ -15,7 +15,8 @@ import pytest
 from maglev_cosim.diagnosis import diagnose
 from maglev_cosim.diagnosis.effects import periodic_evidence, reference_periods
 from maglev_cosim.diagnosis.problem import Problem
-from maglev_cosim.records.record import read_record
+from maglev_cosim.diagnosis.residual import check_controller
+from maglev_cosim.records.record import RecordError, read_record
 from maglev_cosim.diagnosis.replay import baseline_params
 from maglev_cosim.records.synth import synth_record
 from maglev_cosim.report.diagnosis_report import _fmt, write_report
@@ -130,3 +131,22 @@ def test_the_report_shows_the_calibrated_baseline_and_the_final_model_apart(tmp_
         assert row == _fmt(d.parameters[name]), (name, row)
     assert d.calibrated_baseline["k_FV"] != d.parameters["k_FV"]     # the two tables differ here
     assert (tmp_path / "resid.png").stat().st_size > 10000
+
+
+def test_a_record_with_u_and_y_swapped_is_refused_at_once_naming_the_column(tmp_path):
+    """Issue 22 item 6: the recorded u is checked against what the declared controller makes of the
+    recorded w and y before anything is fitted; a record whose u and y columns are swapped is refused
+    with one error at the header's u column that says they look swapped, and writes nothing."""
+    path = synth_record(tmp_path / "r.csv", seed=4, duration=4.0)
+    assert check_controller(read_record(path, plausibility="warn")) > 85.0
+    lines = path.read_text().splitlines()
+    body = [ln if ln.startswith("#") or ln.startswith("t,") else ",".join(
+        (c := ln.split(","))[:2] + [c[3], c[2]] + c[4:]) for ln in lines]
+    swapped = tmp_path / "swapped.csv"
+    swapped.write_text("\n".join(body) + "\n")
+    header = next(k for k, ln in enumerate(body, 1) if ln.startswith("t,"))
+    with pytest.raises(RecordError) as err:
+        diagnose(read_record(swapped, plausibility="warn"))
+    assert (err.value.line, err.value.column) == (header, body[header - 1].split(",").index("u") * 2 + 1)
+    assert "are u and y swapped?" in err.value.message and "NRMSE fit" in err.value.message
+    assert not list(tmp_path.glob("*.fmu"))

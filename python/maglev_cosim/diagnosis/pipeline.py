@@ -31,7 +31,7 @@ from .identify import equilibrium_points, least_squares_eq14
 from .metrics import nrmse_fit
 from .problem import Parameterization, Problem, cost_on, fit, residuals
 from .replay import HORIZON_S, baseline_params, estimate_noise
-from .residual import analyse_residual, effective_samples, noise_floor
+from .residual import analyse_residual, check_controller, effective_samples, noise_floor
 from .verdict import Verdict, conclude, on_bounds
 
 MAX_EFFECTS = 3
@@ -521,6 +521,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
         if e not in CATALOGUE:
             raise ValueError(f"unknown effect {e!r}: choose from {', '.join(CATALOGUE)}")
     workers = workers or min(2, os.cpu_count() or 1)
+    check_controller(rec)      # a record whose u its controller did not make (swapped columns): at once
     base = baseline_params()
     base.update({k: float(v) for k, v in (static_start(rec, base, say) if start is None else start).items()})
     fit_mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0

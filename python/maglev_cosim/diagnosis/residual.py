@@ -12,7 +12,8 @@ from ..loop import fast_loop
 from ..loop.controllers import needs_current
 from ..plant import formulas
 from ..plant.params import get_params
-from ..records.record import Record
+from ..records.record import Record, RecordError
+from .metrics import nrmse_fit
 from .replay import record_controller
 
 
@@ -145,3 +146,33 @@ def _controller_noise_gain(rec: Record, n: int = 4000) -> float:
     u0 = fast_loop.control(c, w, w, cur, op.u, (x0, 0.0, op.i))
     u1 = fast_loop.control(c, w, w + noise, cur, op.u, (x0, 0.0, op.i))
     return float(np.std(u1 - u0) / level)
+
+
+#: The least NRMSE fit [%] of the recorded u by the declared controller run on the recorded w and y
+#: (:func:`check_controller`). A record of the controller it declares is fitted to within its
+#: converters' rounding (above 99 % on the emulators' records); a controller implemented a little
+#: differently (a filtered derivative, another anti-windup) still passes at this bound.
+CONTROLLER_FIT_MIN = 50.0
+
+
+def check_controller(rec: Record) -> float | None:
+    """Checks at once that the recorded u is what the record's declared controller makes of the
+    recorded w and y, and raises :class:`~maglev_cosim.records.record.RecordError` at the header's u
+    column when it is not, saying whether the columns u and y look swapped. Returns the fit [%], or
+    None when the check cannot run (a controller that reads the coil current, which the record lacks)."""
+    ctl = record_controller(rec)
+    if needs_current(ctl):
+        return None
+    fit = nrmse_fit(rec.u, fast_loop.control(ctl, rec.w, rec.y, None, float(rec.u[0])))
+    if fit >= CONTROLLER_FIT_MIN:
+        return fit
+    swapped = nrmse_fit(rec.y, fast_loop.control(ctl, rec.w, rec.u, None, float(rec.y[0])))
+    what = f"the controller file {rec.controller_file}" if rec.controller_file else (
+        f"the PID of its metadata, kp {rec.kp:g}, ki {rec.ki:g}, kd {rec.kd:g}")
+    hint = (f"; with the columns u and y swapped it fits {swapped:.1f} %: are u and y swapped?"
+            if swapped >= CONTROLLER_FIT_MIN else
+            ": is the controller the record declares (its metadata or controller file) the one that ran?")
+    raise RecordError(rec.path, rec.header_line, rec.header_columns.get("u", 0),
+                      f"the recorded u is not what the declared controller ({what}) makes of the recorded w "
+                      f"and y: NRMSE fit {fit:.1f} %, at least {CONTROLLER_FIT_MIN:.0f} % expected{hint}")
+

@@ -89,6 +89,10 @@ class Record:
     #: of the metadata. ``controller_file`` is where it came from.
     controller: Any = None
     controller_file: str | None = None
+    #: Where the header is in the file: its line (1-based) and each column's character column, for
+    #: errors found after reading that name the column (0 and empty when not read from a CSV file).
+    header_line: int = 0
+    header_columns: dict[str, int] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -369,7 +373,8 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES, plausibilit
     rec = Record(str(path), t, data[:, 1], data[:, 2], data[:, 3], ts, params_pid["kp"], params_pid["ki"],
                  params_pid["kd"], params_pid["u_min"], params_pid["u_max"], meta, extra, tf=tf,
                  anti_windup=anti_windup, controller=None if declared is None else declared.controller,
-                 controller_file=None if declared is None else str(declared.path))
+                 controller_file=None if declared is None else str(declared.path), header_line=header_no,
+                 header_columns={h: _cell_column(header_raw, j) for j, h in enumerate(header)})
     if plausibility != "off":
         for name, fraction, message in plausibility_findings(rec, params):
             if plausibility == "refuse" and (name == "constant" or fraction > REFUSE.get(name, 1.0)):
