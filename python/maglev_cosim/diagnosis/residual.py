@@ -149,10 +149,13 @@ def _controller_noise_gain(rec: Record, n: int = 4000) -> float:
 
 
 #: The least NRMSE fit [%] of the recorded u by the declared controller run on the recorded w and y
-#: (:func:`check_controller`). A record of the controller it declares is fitted to within its
-#: converters' rounding (above 99 % on the emulators' records); a controller implemented a little
-#: differently (a filtered derivative, another anti-windup) still passes at this bound.
-CONTROLLER_FIT_MIN = 50.0
+#: (:func:`check_controller`). The fit is low on honest records with a noisy sensor, where the PID's
+#: derivative of the noise dominates u and any difference of timing or rounding shows: 1 to 98 % on
+#: the two emulators' records of the disturbance family (seeds 2100-2111, 3 s; the lowest at sensor
+#: noise above 1e-3 MU). Below -100 % the recomputed u is more than twice as
+#: far from the recorded u as u's own mean: the controller is not the one that ran, or u and y are
+#: swapped (-526 % on a swapped record).
+CONTROLLER_FIT_MIN = -100.0
 
 
 def check_controller(rec: Record) -> float | None:
@@ -170,9 +173,9 @@ def check_controller(rec: Record) -> float | None:
     what = f"the controller file {rec.controller_file}" if rec.controller_file else (
         f"the PID of its metadata, kp {rec.kp:g}, ki {rec.ki:g}, kd {rec.kd:g}")
     hint = (f"; with the columns u and y swapped it fits {swapped:.1f} %: are u and y swapped?"
-            if swapped >= CONTROLLER_FIT_MIN else
+            if swapped > max(fit, CONTROLLER_FIT_MIN) + 50.0 else
             ": is the controller the record declares (its metadata or controller file) the one that ran?")
     raise RecordError(rec.path, rec.header_line, rec.header_columns.get("u", 0),
                       f"the recorded u is not what the declared controller ({what}) makes of the recorded w "
-                      f"and y: NRMSE fit {fit:.1f} %, at least {CONTROLLER_FIT_MIN:.0f} % expected{hint}")
+                      f"and y: NRMSE fit {fit:.1f} %, above {CONTROLLER_FIT_MIN:.0f} % expected{hint}")
 
