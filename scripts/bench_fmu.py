@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
                  ", ".join(runs[0]["diagnosis"][label]["selected"]) or "—",
                  str(runs[0]["diagnosis"][label]["candidates"])] for label in labels]
         sections.append(("Diagnosis time of a 12 s record",
-                         f"The default catalogue, {len(runs)} runs back to back (`maglev-cosim bench`). Targets "
+                         f"The default catalogue, {len(runs)} run{'s' if len(runs) > 1 else ''} back to back (`maglev-cosim bench`). Targets "
                          "(issue 22): 3 s wall with one effect, 5 s with two.\n\n"
                          + benchdoc.table(["record", "wall [s]", "CPU [s]", "selected", "fits"], rows), wall))
     for title, body, w in sections:
