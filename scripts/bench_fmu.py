@@ -95,10 +95,10 @@ def main(argv: list[str] | None = None) -> int:
                          "(issue 22): 3 s wall with one effect, 5 s with two.\n\n"
                          + benchdoc.table(["record", "wall [s]", "CPU [s]", "selected", "fits"], rows), wall))
     for title, body, w in sections:
-        text = f"## {title}\n\n{benchdoc.stamp(w)}\n\n{body}\n"
+        text = benchdoc.section(title, body, w)
         print(text)
         if not a.no_write:
-            benchdoc.write_section(title, body, w)
+            benchdoc.replace_section(text)
     if not a.no_write:
         print(f"wrote {len(sections)} sections of {benchdoc.DOC}")
     return 0

@@ -13,7 +13,6 @@ doc are written only by this script.
 from __future__ import annotations
 
 import argparse
-import datetime
 import os
 import sys
 import time
@@ -23,7 +22,7 @@ import benchdoc
 from maglev_cosim.diagnosis import real_rig
 from maglev_cosim.rigs import load_rig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = benchdoc.ROOT
 CALIBRATION = ("multisteps_stairs/LQR_tracking", "multisteps_stairs/PID_anti_windup", "step/MPC")
 VALIDATION = ("multisteps_stairs/LQI", "multisteps_stairs/MPC", "multisteps_stairs/PID_gain_scheduling",
               "step/LQI", "step/PID_anti_windup", "step/PID_gain_scheduling")
@@ -46,8 +45,7 @@ def _skill_cell(p: dict, who: str) -> str:
 def section(res: dict, command: str, wall_s: float) -> str:
     comp = res["comparison"]
     lines = [SECTION, "",
-             f"Written by `scripts/bench_rig.py` on {datetime.date.today().isoformat()} ({benchdoc.machine()}); wall time "
-             f"{wall_s:.0f} s. The command it runs is equivalent to:", "", "```", command, "```", "",
+             f"{benchdoc.stamp(wall_s)} The command it runs is equivalent to:", "", "```", command, "```", "",
              f"Verdict: **{res['verdict']}**.", "",
              "Median skill against 'stays put' of the gap predicted ahead (worst segment in brackets): the model "
              "(physics with its effects and its calibrated disturbance model, driven by the measured PWM duty), "
@@ -109,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     print(text)
     if not a.no_write:
         benchdoc.replace_section(text)
-        print(f"wrote the section of {ROOT / 'docs' / 'benchmarks.md'}")
+        print(f"wrote the section of {benchdoc.DOC}")
     return 0
 
 

@@ -67,10 +67,15 @@ def replace_section(text: str, doc: Path = DOC) -> str:
     return text
 
 
+def section(title: str, body: str, wall_s: float, *, command: str | None = None) -> str:
+    """The section ``## title``: the stamp, then ``body``."""
+    return f"## {title}\n\n{stamp(wall_s, command)}\n\n{body.strip()}\n"
+
+
 def write_section(title: str, body: str, wall_s: float, *, command: str | None = None, doc: Path = DOC) -> str:
     """Replaces the section ``## title`` of ``doc`` (or appends it) with the stamp and ``body``;
     returns the section's text."""
-    return replace_section(f"## {title}\n\n{stamp(wall_s, command)}\n\n{body.strip()}\n", doc)
+    return replace_section(section(title, body, wall_s, command=command), doc)
 
 
 def table(header: list[str], rows: list[list[str]]) -> str:

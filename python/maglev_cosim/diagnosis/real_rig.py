@@ -701,11 +701,11 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
         evals[0] += 1
         return _errors(rig, records, params, _with_coef(noise, corr, coef), stride=stride, own=own)
 
-    def jacobian(z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The errors at ``z0`` and their Jacobian by forward differences (``npar`` + 1 replays):
-        the correction is a force linear in its coefficients, so the errors are nearly linear in
-        them and one Jacobian serves every fit below."""
-        e0 = errors(z0 * unit)[0]
+    def jacobian(z0: np.ndarray, e0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The errors at ``z0`` (given, or one replay) and their Jacobian by forward differences
+        (``npar`` replays): the correction is a force linear in its coefficients, so the errors are
+        nearly linear in them and one Jacobian serves every fit below."""
+        e0 = errors(z0 * unit)[0] if e0 is None else e0
         J = np.empty((len(e0), npar))
         for k in range(npar):
             z = z0.copy()
@@ -731,7 +731,7 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
     cost0 = {p: float(np.sum(e0[par == p] ** 2)) for p in (0, 1)}
     even = par == 0
     everything = list(range(npar))
-    e0, J0 = jacobian(np.zeros(npar))
+    e0, J0 = jacobian(np.zeros(npar), e0)
     lin0 = (e0, J0, np.zeros(npar))
 
     def held(z: np.ndarray) -> float:
