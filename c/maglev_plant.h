@@ -66,7 +66,11 @@ typedef enum {
 typedef enum { MAGLEV_INPUT, MAGLEV_OUTPUT, MAGLEV_PARAMETER } MaglevCausality;
 
 /* min/max: the inclusive range maglev_check_value enforces (-inf/inf where the value is
- * only required to be finite, and for outputs the range the plant keeps them in). */
+ * only required to be finite, and for outputs the range the plant keeps them in).
+ * effect: the effect of the diagnosis's catalogue a parameter belongs to ("delay", "force_lag", ...;
+ * "" for the baseline plant, its inputs and outputs). It is the one place that says which parameters
+ * make which effect: PlantParams, the catalogue, synth, the emulators' effect lists and the model
+ * descriptions read it (docs/adding-an-effect.md). */
 typedef struct {
     const char *name;
     MaglevCausality causality;
@@ -74,6 +78,7 @@ typedef struct {
     double min, max;
     const char *unit;
     const char *description;
+    const char *effect;
 } MaglevVariable;
 
 /* One row per value reference, indexed by MaglevVR. */

@@ -26,6 +26,7 @@ static const MaglevVariable *param_row(int k) {
 double maglev_replay_param_min(int k) { return param_row(k) ? param_row(k)->min : NAN; }
 double maglev_replay_param_max(int k) { return param_row(k) ? param_row(k)->max : NAN; }
 const char *maglev_replay_param_unit(int k) { return param_row(k) ? param_row(k)->unit : NULL; }
+const char *maglev_replay_param_effect(int k) { return param_row(k) ? param_row(k)->effect : NULL; }
 
 static int load(MaglevPlant *m, const double *params, char *msg, size_t len) {
     maglev_defaults(m);

@@ -179,5 +179,7 @@ double maglev_replay_param_default(int k);
 double maglev_replay_param_min(int k);
 double maglev_replay_param_max(int k);
 const char *maglev_replay_param_unit(int k);
+/* The effect the parameter belongs to ("" for the baseline plant), from the C variable table. */
+const char *maglev_replay_param_effect(int k);
 
 #endif

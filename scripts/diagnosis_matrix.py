@@ -39,7 +39,7 @@ import numpy as np
 import benchdoc
 
 from maglev_cosim.diagnosis import CATALOGUE, diagnose
-from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
+from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS, TWINS
 from maglev_cosim.plant.params import get_params
 from maglev_cosim.records.record import read_record
 from maglev_cosim.records.synth import draw_disturbance, synth_record
@@ -48,15 +48,10 @@ from maglev_cosim.records.synth import draw_disturbance, synth_record
 #: (``maglev_cosim.records.emulator_ivp.synth_record``, same arguments; docs/diagnosis.md, "The independent emulator").
 SYNTH = synth_record
 
-#: The catalogue cases of the power benchmark: today's magnitudes (the matrix's).
-POWER_CASES: dict[str, dict] = {
-    "amplifier_lag": {"amplifier_lag": {"T_a": 0.003}},
-    "force_lag": {"force_lag": {"T_F": 0.002}},
-    "delay": {"delay": {"T_d": 0.0025}},
-    "sensor_nonlinearity": {"sensor_nonlinearity": {"k_x2": -30000.0}},
-    "current_saturation": {"current_saturation": {"i_max": 0.85}},
-    "periodic_disturbance": {"periodic_disturbance": {"A_d": 0.008, "f_d": 37.0, "phi_d": 1.0}},
-}
+#: The catalogue cases of the power benchmark: each default entry at its example magnitude (the matrix's,
+#: diagnosis/effects.py), but friction, which the family draws per record (``--friction``).
+POWER_CASES: dict[str, dict] = {name: {name: dict(CATALOGUE[name].example)} for name in DEFAULT_EFFECTS
+                                if name != "coulomb_friction"}
 
 #: The kinds issue 22 adds to the family, drawn per record (log-uniform, from the record's seed):
 #: a current limit acting in 1 to 60 % of the samples, placed at that quantile of the current of the
@@ -97,23 +92,30 @@ def _limit_for_share(path: Path, seed: int, dist: dict, target: float, lo: float
     return best[0]
 
 
+def _label(name: str, values: dict[str, float]) -> str:
+    """A matrix row's name: the effect and its planted values."""
+    return f"{name} " + ", ".join(f"{k}={v:g}" for k, v in values.items())
+
+
+#: Rows that try other entries than the default (DEFAULT_EFFECTS): each opt-in entry beside the default
+#: ones, with its twin left out (docs/diagnosis.md), and the two lags with every entry tried.
+TRIED: dict[str, list[str]] = {
+    **{_label(name, e.example): [n for n in CATALOGUE if (n in DEFAULT_EFFECTS or n == name)
+                                 and frozenset({n, name}) not in TWINS]
+       for name, e in CATALOGUE.items() if name not in DEFAULT_EFFECTS},
+    "sensor lag, all tried": list(CATALOGUE),
+    "force lag, all tried": list(CATALOGUE),
+}
+
 CASES: list[tuple[str, dict]] = [
     ("none", {}),
     ("parameters only", {"params": {"k_c": 7.6e-6, "x_0": 0.0088, "k_FV": 0.02}}),
-    ("amplifier_lag T_a=3ms", {"effects": {"amplifier_lag": {"T_a": 0.003}}}),
-    ("force_lag T_F=2ms", {"effects": {"force_lag": {"T_F": 0.002}}}),
-    ("delay T_d=2.5ms", {"effects": {"delay": {"T_d": 0.0025}}}),
-    ("sensor lag T_y=2ms", {"effects": {"sensor_lag": {"T_y": 0.002}}}),
+    # every catalogue entry at its example magnitude (diagnosis/effects.py)
+    *((_label(name, e.example), {"effects": {name: dict(e.example)}}) for name, e in CATALOGUE.items()),
     ("sensor lag, all tried", {"effects": {"sensor_lag": {"T_y": 0.002}}}),
     ("force lag, all tried", {"effects": {"force_lag": {"T_F": 0.002}}}),
-    ("sensor k_x2=-3e4", {"effects": {"sensor_nonlinearity": {"k_x2": -30000.0}}}),
-    ("saturation i_max=0.85", {"effects": {"current_saturation": {"i_max": 0.85}}}),
-    ("pickup 8mV 37Hz", {"effects": {"periodic_disturbance": {"A_d": 0.008, "f_d": 37.0, "phi_d": 1.0}}}),
     ("delay 2ms + 50Hz", {"effects": {"delay": {"T_d": 0.002},
                                       "periodic_disturbance": {"A_d": 0.008, "f_d": 50.0, "phi_d": 0.0}}}),
-    ("force exponent n=3", {"effects": {"force_exponent": {"n_F": 3.0}}}),
-    ("friction F_c=2mN", {"effects": {"coulomb_friction": {"F_c": 2e-3}}}),
-    ("dead zone u_dz=0.5V, tried", {"effects": {"amplifier_dead_zone": {"u_dz": 0.5}}}),
     ("OUTSIDE slew 20A/s", {"effects": {"slew_rate": {"di_max": 20.0}}}),
     ("OUTSIDE ripple 20mV/0.5mm", {"effects": {"sensor_ripple": {"A_r": 0.02, "lambda_r": 5e-4}}}),
     ("square: delay 2ms", {"effects": {"delay": {"T_d": 0.002}}, "reference": "square"}),
@@ -128,15 +130,6 @@ CASES: list[tuple[str, dict]] = [
     ("gains 2.5/4/0.008: delay", {"effects": {"delay": {"T_d": 0.0015}}, "kp": 2.5, "ki": 4.0, "kd": 0.008}),
     ("gains 2.5/4/0.008: none", {"kp": 2.5, "ki": 4.0, "kd": 0.008}),
 ]
-
-#: Rows that try other entries than the default (DEFAULT_EFFECTS): the opt-in ones.
-TRIED: dict[str, list[str]] = {
-    "friction F_c=2mN": [*DEFAULT_EFFECTS, "coulomb_friction"],
-    "dead zone u_dz=0.5V, tried": [*DEFAULT_EFFECTS, "amplifier_dead_zone"],   # the D/A offset's twin
-    "sensor lag T_y=2ms": [e for e in CATALOGUE if e != "force_lag"],    # its twin left out
-    "sensor lag, all tried": list(CATALOGUE),
-    "force lag, all tried": list(CATALOGUE),
-}
 
 
 def _describe(dist: dict) -> str:
@@ -322,7 +315,7 @@ def main() -> None:
                          "what putting it in the default catalogue would do (repeatable)")
     a = ap.parse_args()
     t_start = time.perf_counter()
-    global SYNTH, FAMILY_EFFECTS
+    global SYNTH, FAMILY_EFFECTS, POWER_CASES
     if a.also:
         FAMILY_EFFECTS = [*DEFAULT_EFFECTS, *(e for e in a.also if e not in DEFAULT_EFFECTS)]
     supported = None
@@ -336,6 +329,7 @@ def main() -> None:
         settings = {k.strip(): (v.strip() if k.strip() == "method" else float(v))
                     for k, v in (item.split("=", 1) for item in a.setting)}
         SYNTH, supported = partial(emulator_ivp.synth_record, settings=settings), set(emulator_ivp.EFFECTS)
+        POWER_CASES = {k: v for k, v in POWER_CASES.items() if set(v) <= supported}
     if a.family:
         with tempfile.TemporaryDirectory() as tmp:
             n_extra = [min(a.power if v is None else v, a.family) for v in (a.limits, a.friction)]

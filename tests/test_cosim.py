@@ -13,6 +13,7 @@ from maglev_cosim.loop.design import discrete_closed_loop
 from maglev_cosim.plant.linear import operating_point
 from maglev_cosim.loop.simulate import LoopResponse, reference_signal, simulate
 from maglev_cosim.plant.params import PlantParams, get_params
+from maglev_cosim.diagnosis.effects import CATALOGUE
 
 X = 0.0032
 
@@ -129,7 +130,9 @@ def test_closed_loop_result_writes_a_record(tmp_path, fmu_path):
     assert {"x", "v", "i"} <= set(rec.extra)
 
 
-@pytest.mark.parametrize("effect", [
+#: Effects at magnitudes that show the numerics' corners, then every other catalogue entry at its example
+#: magnitude (diagnosis/effects.py): an effect added to the catalogue is checked here by itself.
+_EFFECT_CASES = [
     {"T_a": 3e-3},
     {"T_a": 3e-4},                  # a transient RK4 sees only through transient_squares' weights
     {"T_a": 3e-4, "T_F": 1e-3},     # with a force lag: ETDRK4 on substeps refined over the transient
@@ -144,7 +147,12 @@ def test_closed_loop_result_writes_a_record(tmp_path, fmu_path):
     {"u_dz": 1.2},
     {"T_y": 2e-3},
     {"T_y": 1e-3, "T_a": 1e-3, "T_d": 1e-3},
-])
+]
+_EFFECT_CASES += [dict(e.example) for e in CATALOGUE.values()
+                  if not set(e.params) & {p for case in _EFFECT_CASES for p in case}]
+
+
+@pytest.mark.parametrize("effect", _EFFECT_CASES)
 def test_each_effect_agrees_between_the_c_plant_and_the_reference(fmu_path, effect):
     """The catalogue's effects, written twice (C and Python), agree in closed loop: 1 s with a
     0.05 MU step. The baseline is Section 3 with T_a = 0 (Eq. 5), as in the diagnosis."""

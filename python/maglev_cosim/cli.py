@@ -707,8 +707,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--emulator", choices=["rig", "ivp"], default="rig",
                    help="rig: maglev_cosim.records.emulator (default); ivp: the independent emulator written from the paper "
                         "(maglev_cosim.records.emulator_ivp: solve_ivp, coloured sensor noise, the PID's output 0.3 of a "
-                        "sample late; effects amplifier_lag, force_lag, delay, sensor_nonlinearity, "
-                        "current_saturation, periodic_disturbance, coulomb_friction)")
+                        "sample late; effects " + ", ".join(emulator_ivp.EFFECTS) + ")")
     s.add_argument("--setting", action="append", metavar="NAME=VALUE",
                    help="with --emulator ivp: pid_offset (fraction of the sample, default 0.3), f_y (sensor noise "
                         "corner [Hz], default 100, inf: white), v_c (friction smoothing [m/s]), method, rtol")

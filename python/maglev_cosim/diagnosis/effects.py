@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from scipy.stats import chi2
 
+from ..plant.fast import effect_params, param_table
 from ..plant.formulas import positions
 from .problem import Coord, Parameterization, Problem, fit, residuals
 from .residual import effective_samples, spectral_peaks
@@ -31,15 +32,32 @@ class Baseline(Parameterization):
 BASELINE = Baseline()
 
 
+#: Effect name -> its FMU parameters, from the C variable table's ``effect`` column: an entry's
+#: parameters are declared there, once (``docs/adding-an-effect.md``).
+EFFECT_PARAMS: dict[str, tuple[str, ...]] = effect_params()
+
+
 class Effect(Parameterization):
-    """A candidate effect of the catalogue."""
+    """A candidate effect of the catalogue. Its FMU parameters are the C table's rows of its name
+    (:data:`EFFECT_PARAMS`); the entry owns how they are fitted: coordinates, transforms, starts."""
 
     name: str = ""
+
+    @property
+    def params(self) -> tuple[str, ...]:  # type: ignore[override]
+        """The FMU parameters of the effect: the C variable table's rows whose effect is its name."""
+        return EFFECT_PARAMS[self.name]
+
     description: str = ""
     location: str = ""       # where it acts on the loop: "actuator", "mechanics" or "sensor"
     #: Calibrated baseline parameters that can mimic the effect, so that from their calibrated
     #: values the effect's fit may end off: such a fit is retried from where the calibration started.
     absorbed_by: tuple[str, ...] = ()
+    #: A magnitude at which the effect is planted in synthetic records (the benchmark's rows, the
+    #: tests), and the relative tolerance within which the diagnosis recovers each of its values
+    #: there (``tests/test_diagnose.py``; an empty ``tolerance``: the effect is not expected to be found).
+    example: Mapping[str, float] = {}
+    tolerance: Mapping[str, float] = {}
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         """Starting coordinates, placed from the record where the cost is flat or multimodal."""
@@ -69,9 +87,11 @@ class _TimeConstant(Effect):
     """A lag or a delay: one time constant. Near the stability limit the replay error is far from
     quadratic in it, and a coarse start can leave least squares in a side valley: a dense grid."""
 
-    def __init__(self, name: str, param: str, lo: float, location: str, description: str) -> None:
-        self.name, self.description, self.params, self.location = name, description, (param,), location
-        self.coords = (Coord(param, 1e-3, lo, 0.05),)
+    def __init__(self, name: str, lo: float, location: str, description: str, example: float,
+                 tolerance: float) -> None:
+        self.name, self.description, self.location = name, description, location
+        self.coords = (Coord(self.params[0], 1e-3, lo, 0.05),)
+        self.example, self.tolerance = {self.params[0]: example}, {self.params[0]: tolerance}
 
     def is_off(self, values: Mapping[str, float]) -> bool:
         """At most 20 us above the lower bound: 2 % of a 1 kHz sample."""
@@ -86,7 +106,8 @@ class SensorNonlinearity(Effect):
     name = "sensor_nonlinearity"
     description = "the sensor's deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12"
     location = "sensor"
-    params = ("k_x2",)
+    example = {"k_x2": -30000.0}
+    tolerance = {"k_x2": 0.35}
     coords = (Coord("k_x2", 1e4, -1e6, 1e6),)
 
     def is_off(self, values: Mapping[str, float]) -> bool:
@@ -114,8 +135,9 @@ class CurrentSaturation(Effect):
     name = "current_saturation"
     description = "an amplifier current limit i_max below the 1.5 A the D/A range implies"
     location = "actuator"
+    example = {"i_max": 0.85}
+    tolerance = {"i_max": 0.03}
     absorbed_by = ("u_0",)
-    params = ("i_max",)
     coords = (Coord("i_max", 0.05, 0.2, 1.5),)
 
     def is_off(self, values: Mapping[str, float]) -> bool:
@@ -176,7 +198,8 @@ class PeriodicDisturbance(Effect):
     name = "periodic_disturbance"
     description = "sinusoidal pickup A_d*sin(2*pi*f_d*t + phi_d) on the sensor voltage"
     location = "sensor"
-    params = ("A_d", "f_d", "phi_d")
+    example = {"A_d": 0.008, "f_d": 37.0, "phi_d": 1.0}
+    tolerance = {"A_d": 0.05, "f_d": 0.002}
     coords = (Coord("a", 0.01, -1.0, 1.0), Coord("b", 0.01, -1.0, 1.0), Coord("f_d", 0.01, 0.5, 450.0))
 
     def to_params(self, z: Sequence[float]) -> dict[str, float]:
@@ -390,7 +413,8 @@ class CoulombFriction(Effect):
     name = "coulomb_friction"
     description = "Coulomb friction F_c*tanh(v/0.1 mm/s) on the moving ball (guide, air, cable drag)"
     location = "mechanics"
-    params = ("F_c",)
+    example = {"F_c": 2e-3}
+    tolerance = {"F_c": 0.25}
     coords = (Coord("F_c", 1e-3, 0.0, 0.05),)
 
     def is_off(self, values: Mapping[str, float]) -> bool:
@@ -410,7 +434,8 @@ class ForceExponent(Effect):
     name = "force_exponent"
     description = "a force law k_c*i^2/(x_0 - x)^n_F with n_F other than Eq. 8's 2"
     location = "mechanics"
-    params = ("n_F", "x_n")
+    example = {"n_F": 3.0}
+    tolerance = {"n_F": 0.05}
     coords = (Coord("n_F", 0.1, 1.0, 4.0),)
 
     def to_params(self, z: Sequence[float]) -> dict[str, float]:
@@ -440,7 +465,8 @@ class AmplifierDeadZone(Effect):
     name = "amplifier_dead_zone"
     description = "a dead zone of half-width u_dz [V] around 0 V at the amplifier's input"
     location = "actuator"
-    params = ("u_dz",)
+    example = {"u_dz": 0.5}
+    tolerance = {}
     coords = (Coord("u_dz", 0.1, 0.0, 3.0),)
 
     def is_off(self, values: Mapping[str, float]) -> bool:
@@ -460,13 +486,15 @@ class AmplifierDeadZone(Effect):
 
 
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
-    _TimeConstant("amplifier_lag", "T_a", 0.0, "actuator", "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5"),
+    _TimeConstant("amplifier_lag", 0.0, "actuator", "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5",
+                  0.003, 0.10),
     # below 50 us a force lag is invisible at 1 kHz
-    _TimeConstant("force_lag", "T_F", 5e-5, "mechanics", "the magnetic force following the static law through a lag T_F "
-                  "(eddy currents)"),
-    _TimeConstant("delay", "T_d", 0.0, "actuator", "a transport delay T_d of the D/A signal (computation and I/O)"),
-    _TimeConstant("sensor_lag", "T_y", 0.0, "sensor", "a first-order lag T_y through which the sensor sees the position "
-                  "(its electronics' filter)"),
+    _TimeConstant("force_lag", 5e-5, "mechanics", "the magnetic force following the static law through a lag T_F "
+                  "(eddy currents)", 0.002, 0.15),
+    _TimeConstant("delay", 0.0, "actuator", "a transport delay T_d of the D/A signal (computation and I/O)",
+                  0.0025, 0.10),
+    _TimeConstant("sensor_lag", 0.0, "sensor", "a first-order lag T_y through which the sensor sees the position "
+                  "(its electronics' filter)", 0.002, 0.10),
     SensorNonlinearity(),
     CurrentSaturation(),
     PeriodicDisturbance(),
@@ -474,6 +502,26 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     ForceExponent(),
     AmplifierDeadZone(),
 )}
+
+
+
+def _check_catalogue() -> None:
+    """Every effect of the C table has its entry, and every entry's coordinates that are FMU
+    parameters search within the range the C table allows them (the table's bounds are the outer ones)."""
+    missing = sorted(set(EFFECT_PARAMS) - set(CATALOGUE))
+    if missing:
+        raise RuntimeError(f"effect(s) of the C variable table without a catalogue entry: {', '.join(missing)}")
+    table = param_table()
+    for eff in CATALOGUE.values():
+        if not set(eff.example) <= set(eff.params) >= set(eff.tolerance):
+            raise RuntimeError(f"{eff.name}: its example and tolerances name parameters it does not have")
+        for c in eff.coords:
+            if c.name in table and not table[c.name][1] <= c.lo <= c.hi <= table[c.name][2]:
+                raise RuntimeError(f"{eff.name}: search range of {c.name} [{c.lo}, {c.hi}] outside the C table's "
+                                   f"[{table[c.name][1]}, {table[c.name][2]}]")
+
+
+_check_catalogue()
 
 #: The effects a diagnosis tries unless told otherwise: the catalogue but for two opt-in entries
 #: (``--effects``). ``coulomb_friction`` is tried by default since issue 22: with the velocity's

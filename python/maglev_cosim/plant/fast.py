@@ -63,6 +63,24 @@ def param_table() -> dict[str, tuple[float, float, float, str]]:
             for k, n in enumerate(param_names())}
 
 
+def param_effects() -> dict[str, str]:
+    """``name: effect`` for every FMU parameter, from the C variable table's ``effect`` column: the
+    effect of the diagnosis's catalogue the parameter belongs to, ``""`` for the baseline plant."""
+    m = _lib()
+    return {n: m.ffi.string(m.lib.maglev_replay_param_effect(k)).decode() for k, n in enumerate(param_names())}
+
+
+def effect_params() -> dict[str, tuple[str, ...]]:
+    """``effect: (parameter, ...)`` in the C table's order: which parameters make which effect. The
+    one declaration of an effect's parameters; everything else (:mod:`maglev_cosim.plant.params`,
+    the catalogue, synth, the emulators) derives its lists from it."""
+    out: dict[str, tuple[str, ...]] = {}
+    for name, effect in param_effects().items():
+        if effect:
+            out[effect] = out.get(effect, ()) + (name,)
+    return out
+
+
 def default_params() -> dict[str, float]:
     """The C defaults (the FMU's start values, Section 3)."""
     return dict(_defaults())

@@ -102,6 +102,18 @@ class Variable:
     description: str
     min: float = -math.inf
     max: float = math.inf
+    effect: str = ""        # the catalogue effect a parameter belongs to ("": the baseline plant)
+
+    @property
+    def described(self) -> str:
+        """The description a model description carries: the table's, and the effect the parameter
+        belongs to (the C table's ``effect`` column), so that a tool's user sees which parameters
+        switch which effect on."""
+        if not self.effect:
+            return self.description
+        if self.description.endswith(")"):     # "... (0 = off)" -> "... (0 = off; effect delay)"
+            return f"{self.description[:-1]}; effect {self.effect})"
+        return f"{self.description} (effect {self.effect})"
 
 
 @dataclass(frozen=True)
@@ -186,7 +198,8 @@ def read_table(library: str | Path, *, header: str | Path | None = None, table: 
         if prefix + name != names[vr]:
             raise RuntimeError(f"C table row {vr} is {name!r} but the enum says {names[vr]}")
         rows.append(Variable(vr, name, CAUSALITY[v.causality], float(v.start), ffi.string(v.unit).decode(),
-                             ffi.string(v.description).decode(), float(v.min), float(v.max)))
+                             ffi.string(v.description).decode(), float(v.min), float(v.max),
+                             ffi.string(v.effect).decode()))
     return rows
 
 
@@ -309,7 +322,7 @@ def _generate2(variables: list[Variable], ident: Identity) -> str:
     for v in variables:
         out.append(f'    <!-- index {v.value_reference + 1} -->')
         head = (f'    <ScalarVariable name="{v.name}" valueReference="{v.value_reference}" '
-                f'description={quoteattr(v.description)}')
+                f'description={quoteattr(v.described)}')
         if v.causality == "input":
             out.append(f'{head} causality="input" variability="continuous">')
         elif v.causality == "output":
@@ -351,7 +364,7 @@ def _generate3(variables: list[Variable], ident: Identity) -> str:
             'variability="continuous" description="Simulation time" declaredType="Time" unit="s"/>']
     for v in variables:
         head = (f'    <Float64 name="{v.name}" valueReference="{v.value_reference}" '
-                f'description={quoteattr(v.description)}')
+                f'description={quoteattr(v.described)}')
         if v.causality == "input":
             kind = 'causality="input" variability="continuous"'
         elif v.causality == "output":

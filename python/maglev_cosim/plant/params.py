@@ -11,58 +11,16 @@ Named sets (:data:`PARAMETER_SETS`):
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import field, fields, make_dataclass, replace
+from typing import TYPE_CHECKING
 
-from .fast import check_params
+from .fast import check_params, effect_params, param_effects, param_table
 
 
-@dataclass(frozen=True)
-class PlantParams:
-    """Plant parameters, named as the FMU's variables (SI units; MU = machine units)."""
+class _PlantParamsMethods:
+    """The methods of :class:`PlantParams` (its fields come from the C variable table)."""
 
-    k_DA: float = 5.0          #: D/A gain [V/MU], Eq. 1, Sec. 3.1 (Table 2)
-    u_0: float = 0.0           #: D/A offset [V], Eq. 1, Sec. 3.1
-    k_i: float = 0.3           #: amplifier gain [A/V], Eq. 2, Sec. 3.2
-    T_a: float = 0.3e-3        #: amplifier time constant [s], Eq. 2, Sec. 3.2
-    m_k: float = 8.4e-3        #: ball mass [kg], Eq. 8, Sec. 3.4.1
-    g: float = 9.81            #: gravity [m/s²], Eq. 8
-    k_c: float = 6.9e-6        #: coil constant [N·m²/A²], Eq. 8, Sec. 3.4.2 (LQ)
-    x_0: float = 8.3e-3        #: coil offset [m], Eq. 8, Sec. 3.4.2 (LQ)
-    k_FV: float = 0.03         #: damping [N·s/m], Eq. 8, Sec. 3.4.3
-    k_x: float = 612.3         #: sensor gain [V/m], Eq. 12, Sec. 3.3
-    y_0: float = 0.0125        #: sensor offset [V], Eq. 12, Table 3
-    k_AD: float = 0.2          #: A/D gain [MU/V], Eq. 13, Sec. 3.1 (Table 1)
-    y_MU0: float = 0.0         #: A/D offset [MU], Eq. 13, Sec. 3.1
-    x_min: float = 0.0         #: lower stop [m]
-    x_max: float = 6.3e-3      #: upper stop [m]
-    i_max: float = 1.5         #: amplifier current limit [A] (k_i·k_DA·1 MU)
-    x_start: float = 0.0       #: initial position [m]
-    v_start: float = 0.0       #: initial velocity [m/s]
-    i_start: float = 0.0       #: initial current [A]
-    T_F: float = 0.0           #: force lag [s] (effect force_lag)
-    T_d: float = 0.0           #: transport delay [s] (effect delay)
-    k_x2: float = 0.0          #: sensor nonlinearity [V/m²] (effect sensor_nonlinearity)
-    x_cal: float = 6.3e-3      #: second sensor calibration point [m], Table 3
-    A_d: float = 0.0           #: sensor pickup amplitude [V] (effect periodic_disturbance)
-    f_d: float = 50.0          #: sensor pickup frequency [Hz]
-    phi_d: float = 0.0         #: sensor pickup phase [rad]
-    F_c: float = 0.0           #: Coulomb friction force [N], F_c·tanh(v/0.1 mm/s) (effect coulomb_friction)
-    n_F: float = 2.0           #: force-law exponent [-] (effect force_exponent; 2: Eq. 8)
-    x_n: float = 3.2e-3        #: position [m] where the exponent leaves the force unchanged
-    u_dz: float = 0.0          #: amplifier dead-zone half-width [V] (effect amplifier_dead_zone)
-    k_e: float = 0.0           #: exponential force-law gain [N/A²], k_e·exp(−(x_0 − x)/z_e)·i² (other rigs; 0 = off)
-    z_e: float = 5e-3          #: decay length of the exponential force law [m]
-    R_c: float = 0.0           #: coil resistance [Ω]; > 0 selects a voltage drive (other rigs; 0 = Eq. 2)
-    L_0: float = 0.1           #: coil inductance far from the ball [H] (voltage drive)
-    L_x: float = 0.0           #: inductance the ball adds at x = x_0 [H]
-    z_L: float = 5e-3          #: decay length of the ball's inductance [m]
-    L_g: float = 0.0           #: inverse-gap inductance [H·m], L_g/(x_0 − x)
-    L_i: float = 0.0           #: current dependence of the inductance [H], L_i·atan(a_i·i − b_i)
-    a_i: float = 1.0           #: its current scale [1/A]
-    b_i: float = 0.0           #: its offset [-]
-    V_min: float = 0.0         #: lowest coil voltage of a voltage drive [V]
-    T_y: float = 0.0           #: sensor lag [s]: the sensor sees the position through a first-order lag (effect sensor_lag)
-    solver_step: float = 1e-4  #: largest internal RK4 step [s]
+    __slots__ = ()
 
     def replace(self, **changes: float) -> PlantParams:
         """A copy with some values changed; unknown names raise ``ValueError``."""
@@ -83,7 +41,29 @@ class PlantParams:
         check_params(self.to_start_values())
 
 
-SOURCES: dict[str, str] = {
+def _make_plant_params() -> type:
+    """:class:`PlantParams`, a frozen dataclass with one float field per row of the C variable table
+    (``c/maglev_plant.c``), in its order, defaulting to its start value: a parameter (or an effect's)
+    is declared once, in C, and appears here by itself."""
+    table, effects = param_table(), param_effects()
+    cls = make_dataclass("PlantParams", [(n, float, field(default=row[0])) for n, row in table.items()],
+                         bases=(_PlantParamsMethods,), frozen=True)
+    cls.__module__ = __name__      # pickles by this module's name (make_dataclass's module= is Python 3.12+)
+    lines = [f"- ``{n}`` [{row[3]}]" + (f" (effect ``{effects[n]}``)" if effects[n] else "")
+             for n, row in table.items()]
+    cls.__doc__ = ("Plant parameters, named as the FMU's variables (SI units; MU = machine units), with the "
+                   "C variable table's defaults (Section 3):\n\n" + "\n".join(lines))
+    return cls
+
+
+if TYPE_CHECKING:
+    PlantParams = _PlantParamsMethods
+else:
+    PlantParams = _make_plant_params()
+
+
+#: Where each baseline value comes from; an effect's parameters say their effect (from the C table).
+_BASELINE_SOURCES: dict[str, str] = {
     "k_DA": "Sec. 3.1, Table 2 (Eq. 1)", "u_0": "Sec. 3.1 (Eq. 1)", "k_i": "Sec. 3.2 (Eq. 2)",
     "T_a": "Sec. 3.2 (Eq. 2); Eq. 18 implies 3 ms", "m_k": "Sec. 3.4.1 (Eq. 8)", "g": "standard gravity",
     "k_c": "Sec. 3.4.2, LQ fit (Eq. 14)", "x_0": "Sec. 3.4.2, LQ fit (Eq. 14)",
@@ -92,16 +72,18 @@ SOURCES: dict[str, str] = {
     "y_MU0": "Sec. 3.1 (Eq. 13)", "x_min": "lower mechanical stop (not in the paper)",
     "x_max": "upper mechanical stop, end of the sensor's calibrated range (Sec. 3.3)",
     "i_max": "k_i·k_DA·1 MU (D/A range)", "x_start": "initial state", "v_start": "initial state",
-    "i_start": "initial state", "T_F": "effect force_lag (off)", "T_d": "effect delay (off)",
-    "k_x2": "effect sensor_nonlinearity (off)", "x_cal": "Table 3, second calibration point",
-    "A_d": "effect periodic_disturbance (off)", "f_d": "effect periodic_disturbance",
-    "phi_d": "effect periodic_disturbance", "F_c": "effect coulomb_friction (off)",
-    "n_F": "effect force_exponent (2: Eq. 8)", "x_n": "the paper's operating point (Sec. 4)",
-    "u_dz": "effect amplifier_dead_zone (off)", "k_e": "other rigs' exponential force law (off)",
+    "i_start": "initial state", "x_cal": "Table 3, second calibration point",
+    "x_n": "the paper's operating point (Sec. 4)",
+    "k_e": "other rigs' exponential force law (off)",
     "z_e": "other rigs' exponential force law", "R_c": "other rigs' voltage drive (off: Eq. 2)",
     "L_0": "voltage drive", "L_x": "voltage drive", "z_L": "voltage drive", "L_g": "voltage drive", "L_i": "voltage drive",
-    "a_i": "voltage drive", "b_i": "voltage drive", "V_min": "voltage drive", "T_y": "effect sensor_lag (off)", "solver_step": "numerics",
+    "a_i": "voltage drive", "b_i": "voltage drive", "V_min": "voltage drive", "solver_step": "numerics",
 }
+SOURCES: dict[str, str] = {n: _BASELINE_SOURCES.get(n) or f"effect {e}" for n, e in param_effects().items()}
+
+#: Effect name -> its parameters, from the C variable table (:func:`maglev_cosim.plant.fast.effect_params`):
+#: names, for the emulators, which take nothing else of the model.
+EFFECT_PARAMS: dict[str, tuple[str, ...]] = effect_params()
 
 _SECTION3 = PlantParams()
 PARAMETER_SETS: dict[str, PlantParams] = {

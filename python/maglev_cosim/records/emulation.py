@@ -5,10 +5,24 @@ apart from the model (``tests/test_emulator_ivp.py``)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
+
 import numpy as np
 
 #: The rig noise and converter settings a synthetic record takes (:func:`maglev_cosim.records.synth.draw_disturbance`).
 DISTURBANCE_KEYS = ("sigma_y", "sigma_F_rel", "tau_F_noise", "F_drift_rel", "tau_drift", "bits")
+
+
+def emulated_effects(table: Mapping[str, tuple[str, ...]], settings: Iterable[str],
+                     extra: Mapping[str, tuple[str, ...]] | None = None) -> dict[str, tuple[str, ...]]:
+    """Effect name -> its parameters, for an emulator whose configuration has the fields ``settings``:
+    each effect of the C variable table (``table``, :data:`maglev_cosim.plant.params.EFFECT_PARAMS`)
+    with at least one of its parameters among them, with those of its parameters the emulator has
+    (it writes each effect's physics in its own way, and may leave out a parameter the model needs
+    only for its form, such as ``x_n``); then the emulator's own effects outside the catalogue, ``extra``."""
+    names = set(settings)
+    out = {e: tuple(p for p in ps if p in names) for e, ps in table.items()}
+    return {**{e: ps for e, ps in out.items() if ps}, **dict(extra or {})}
 
 
 def checked_settings(effects: dict[str, dict[str, float]], params: dict[str, float] | None,

@@ -37,6 +37,9 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
+from ..plant.params import EFFECT_PARAMS
+from .emulation import emulated_effects
+
 LSB = 1.0 / 2048.0       # [MU] the default 12-bit converter over ±1 MU (RigConfig.bits)
 
 
@@ -90,6 +93,15 @@ class RigConfig:
         if bad:
             raise ValueError(f"unknown rig parameter(s): {', '.join(bad)}")
         return replace(self, **kw)
+
+
+#: The emulator's effects the catalogue deliberately lacks (honesty tests), with their parameters.
+OUTSIDE_CATALOGUE: dict[str, tuple[str, ...]] = {"slew_rate": ("di_max",), "sensor_ripple": ("A_r", "lambda_r")}
+
+#: Effect name -> its parameters (rig names = FMU names for the catalogue): the C table's effects this
+#: emulator writes in its own way (those with a :class:`RigConfig` field), then :data:`OUTSIDE_CATALOGUE`.
+EFFECTS: dict[str, tuple[str, ...]] = emulated_effects(EFFECT_PARAMS, (f.name for f in fields(RigConfig)),
+                                                       OUTSIDE_CATALOGUE)
 
 
 def position_to_mu(cfg: RigConfig, x: float | np.ndarray) -> float | np.ndarray:

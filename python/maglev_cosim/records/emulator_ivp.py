@@ -47,23 +47,12 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from ..plant.params import PARAMETER_SETS
-from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth
+from ..plant.params import EFFECT_PARAMS, PARAMETER_SETS
+from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth, emulated_effects
 from .record import write_record
 
 #: The paper's values (Section 3, LQ fit), taken by name; ``T_a`` is an effect here (off by default).
 _PAPER = PARAMETER_SETS["section3"]
-
-#: Effect name -> its parameters (the names of the C table and of ``maglev-cosim diagnose --help``).
-EFFECTS: dict[str, tuple[str, ...]] = {
-    "amplifier_lag": ("T_a",),
-    "force_lag": ("T_F",),
-    "delay": ("T_d",),
-    "sensor_nonlinearity": ("k_x2",),
-    "current_saturation": ("i_max",),
-    "periodic_disturbance": ("A_d", "f_d", "phi_d"),
-    "coulomb_friction": ("F_c",),
-}
 
 #: Plant parameters a record may override (SI units), as :data:`maglev_cosim.records.synth.PLANT_PARAMS` and the stops.
 PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD", "y_MU0",
@@ -152,6 +141,11 @@ class IvpConfig:
                 raise ValueError(f"emulator setting {name} = {getattr(c, name)!r} is out of range")
         if not all(math.isfinite(getattr(c, n)) for n in ("k_c", "x_0", "m_k", "T_a", "T_F", "T_d", "i_max", "F_c")):
             raise ValueError("emulator: plant values must be finite")
+
+
+#: Effect name -> its parameters (the names of the C table and of ``maglev-cosim diagnose --help``): the
+#: table's effects this emulator writes in its own way, those whose parameters are :class:`IvpConfig` fields.
+EFFECTS: dict[str, tuple[str, ...]] = emulated_effects(EFFECT_PARAMS, (f.name for f in fields(IvpConfig)))
 
 
 # --------------------------------------------------------------------------- the signal chain

@@ -16,24 +16,8 @@ from ..loop.pid import PID
 from ..plant.params import get_params
 from . import emulator as _rig
 from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth
-from .emulator import RigConfig, simulate_rig
+from .emulator import EFFECTS, RigConfig, simulate_rig
 from .record import write_record
-
-#: Effect name -> its parameters (rig names = FMU names for the catalogue).
-EFFECTS: dict[str, tuple[str, ...]] = {
-    "amplifier_lag": ("T_a",),
-    "force_lag": ("T_F",),
-    "delay": ("T_d",),
-    "sensor_nonlinearity": ("k_x2",),
-    "current_saturation": ("i_max",),
-    "periodic_disturbance": ("A_d", "f_d", "phi_d"),
-    "force_exponent": ("n_F",),
-    "coulomb_friction": ("F_c",),
-    "amplifier_dead_zone": ("u_dz",),
-    "sensor_lag": ("T_y",),
-    "slew_rate": ("di_max",),
-    "sensor_ripple": ("A_r", "lambda_r"),
-}
 
 PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD", "y_MU0")
 
