@@ -11,7 +11,7 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 from maglev_cosim.loop.fmu import FmuPlant
-from maglev_cosim.plant.model_description import GENERATION_DATE, GUID, UNITS, generate, nominal, read_table
+from maglev_cosim.plant.model_description import GENERATION_DATE, GUID, UNITS, generate, nominal, read_table, unit_info
 
 REQUIRED_PARAMETERS = ["k_DA", "u_0", "k_i", "T_a", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD",
                        "y_MU0", "x_min", "x_max", "i_max", "x_start", "v_start", "i_start"]
@@ -168,3 +168,13 @@ def test_runtime_start_values_match_the_xml(fmu_path):
     with FmuPlant(fmu=fmu_path) as plant:
         got = plant.get([v.name for v in params])
     assert got == [float(v.start) for v in params]
+
+
+def test_a_unit_outside_the_list_is_derived_from_its_parts():
+    """A new parameter's unit needs no entry: its SI exponents come from the units it is made of."""
+    assert unit_info("N.m2/A2") is UNITS["N.m2/A2"]
+    assert unit_info("N.m2/A3").base == {"kg": 1, "m": 3, "s": -2, "A": -3}
+    assert unit_info("V/s").base == {"kg": 1, "m": 2, "s": -4, "A": -1}
+    assert unit_info("V/s").quantity == "Unit_V_per_s"
+    with pytest.raises(ValueError, match="not a known unit"):
+        unit_info("furlong/s")

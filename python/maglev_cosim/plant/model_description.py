@@ -87,6 +87,30 @@ UNITS: dict[str, UnitInfo] = {
     "H.m": UnitInfo({"kg": 1, "m": 3, "s": -2, "A": -2}, "InductanceLength"),
 }
 
+
+
+def unit_info(unit: str) -> UnitInfo:
+    """:data:`UNITS`' entry of ``unit``, or for a unit it lacks (a new parameter's ``V/s``), one
+    derived from its parts: a product of known units with integer powers, ``.`` between them and one
+    ``/`` (``N.m2/A2``), its quantity named after the unit (``Unit_V_per_s``). So a table row may
+    bring its own unit; a display unit or a typical magnitude needs an entry in :data:`UNITS`."""
+    if unit in UNITS:
+        return UNITS[unit]
+    base: dict[str, int] = {}
+    for sign, part in zip((1, -1), unit.split("/", 1) if "/" in unit else (unit,)):
+        for factor in part.split("."):
+            m = re.fullmatch(r"([A-Za-z]+)(-?\d*)", factor)
+            if factor == "1":
+                continue
+            if m is None or m.group(1) not in UNITS:
+                raise ValueError(f"unit {unit!r}: {factor!r} is not a known unit ({', '.join(UNITS)})")
+            power = sign * int(m.group(2) or 1)
+            for k, e in UNITS[m.group(1)].base.items():
+                base[k] = base.get(k, 0) + power * e
+    name = "Unit_" + unit.replace("/", "_per_").replace(".", "_")
+    return UnitInfo({k: e for k, e in base.items() if e}, name)
+
+
 CAUSALITY = {0: "input", 1: "output", 2: "parameter"}
 
 
@@ -209,7 +233,7 @@ def _num(x: float) -> str:
 
 def nominal(v: Variable) -> float | None:
     """A power of ten near the variable's size when that is far from 1 (None otherwise)."""
-    size = abs(v.start) if v.start != 0 and v.causality != "output" else UNITS[v.unit].magnitude
+    size = abs(v.start) if v.start != 0 and v.causality != "output" else unit_info(v.unit).magnitude
     if not size:
         return None
     p = round(math.log10(size))
@@ -217,7 +241,7 @@ def nominal(v: Variable) -> float | None:
 
 
 def _real_attrs(v: Variable, *, with_start: bool) -> str:
-    u = UNITS[v.unit]
+    u = unit_info(v.unit)
     a = f'declaredType="{u.quantity}" unit="{v.unit}"'
     if u.display:
         a += f' displayUnit="{u.display[0]}"'
@@ -236,7 +260,7 @@ def _real_attrs(v: Variable, *, with_start: bool) -> str:
 def _units(variables: list[Variable]) -> list[str]:
     out = ['  <UnitDefinitions>']
     for name in sorted({v.unit for v in variables}):
-        u = UNITS[name]
+        u = unit_info(name)
         attrs = "".join(f' {k}="{int(e)}"' for k, e in u.base.items())
         disp = f'<DisplayUnit name="{u.display[0]}" factor="{_num(u.display[1])}"/>' if u.display else ""
         out.append(f'    <Unit name="{name}"><BaseUnit{attrs}/>{disp}</Unit>')
@@ -246,8 +270,8 @@ def _units(variables: list[Variable]) -> list[str]:
 
 def _types(variables: list[Variable], fmi_version: int) -> list[str]:
     out = ['  <TypeDefinitions>']
-    for name in sorted({v.unit for v in variables}, key=lambda n: UNITS[n].quantity):
-        u = UNITS[name]
+    for name in sorted({v.unit for v in variables}, key=lambda n: unit_info(n).quantity):
+        u = unit_info(name)
         disp = f' displayUnit="{u.display[0]}"' if u.display else ""
         attrs = f'quantity="{u.quantity}" unit="{name}"{disp}'
         if fmi_version == 2:
