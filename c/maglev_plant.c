@@ -72,6 +72,7 @@ const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
     [VR_b_i] = {"b_i", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "1", "Offset of the inductance's current dependence", ""},
     [VR_V_min] = {"V_min", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "V", "Lowest coil voltage a voltage drive applies (a PWM stage's floor)", ""},
     [VR_T_y] = {"T_y", MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of a first-order lag through which the sensor sees the position (0 = off)", "sensor_lag"},
+    [VR_r_y] = {"r_y", MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "V/s", "Rate at which the sensor voltage's offset drifts, r_y*t added to Eq. 12 (the sensor electronics warming up; 0 = off)", "sensor_drift"},
     [VR_solver_step] = {"solver_step", MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step", ""},
     [VR_F] = {"F", MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8", ""},
 };
@@ -783,6 +784,7 @@ double maglev_sensor_volts(const MaglevPlant *m, double x, double *dV_dx) {
 double maglev_reading(const MaglevPlant *m, double x, double t) {
     double volts = maglev_sensor_volts(m, x, NULL);
     if (P(m, A_d) != 0) volts += P(m, A_d) * sin(2 * PI * P(m, f_d) * t + P(m, phi_d));
+    volts += P(m, r_y) * t; /* effect sensor_drift: the offset drifts from its calibrated y_0 at t = 0 */
     return P(m, k_AD) * volts + P(m, y_MU0); /* Eq. 13, before the converter's limits */
 }
 

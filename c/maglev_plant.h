@@ -55,6 +55,7 @@ typedef enum {
     VR_b_i,
     VR_V_min,
     VR_T_y,
+    VR_r_y,
     VR_solver_step,
     VR_F,
     MAGLEV_NVARS
