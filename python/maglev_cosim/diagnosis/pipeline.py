@@ -159,12 +159,15 @@ def calibrate(rec: Record, base: dict[str, float], fit_mask: np.ndarray, say: Sa
 
 
 def calibrate_by_prediction(rec: Record, base: dict[str, float], fit_mask: np.ndarray, free: Calibration,
-                            say: Say) -> Calibration:
+                            say: Say, found: Mapping[str, float] | None = None) -> Calibration:
     """The calibration again, on the k-step prediction of a filter that follows the measured past
     (prediction mode): for records whose free run cannot follow them even with the effects found
-    (a loop that rings near instability, a disturbance that drives it)."""
+    (a loop that rings near instability, a disturbance that drives it). The disturbance model is
+    estimated on ``found`` (the free-run search's final model, effects included) when given: the
+    calibrated baseline's would carry what the effects explain as random force, and that inflated
+    force lets a twin effect (a delay for an amplifier lag) predict as well as the true one."""
     say(f"estimating the disturbances, then calibrating on the {HORIZON_S * 1e3:.0f} ms prediction")
-    noise = estimate_noise(rec, {**base, **free.values})
+    noise = estimate_noise(rec, {**base, **(found if found is not None else free.values)})
     pprob = _weighted(Problem(rec, base, 1.0, 1.0, fit_mask, noise=noise), free.values)
     cal = fit(pprob, [BASELINE], [BASELINE.to_coords({**base, **free.values})])
     pprob = _weighted(pprob, cal.values)
@@ -567,7 +570,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
         # the k-step prediction error, which stays meaningful when the loop rings.
         say(f"the final model's free run follows y by only {fit_y:.1f} % (below {FREE_RUN_MIN_FIT:.0f} %): "
             "searching again in prediction mode")
-        cal = calibrate_by_prediction(rec, base, fit_mask, cal, say)
+        cal = calibrate_by_prediction(rec, base, fit_mask, cal, say, found=final_values)
         found = search(cal.prob, dict(cal.values), effects, ~fit_mask, workers, say)
         final_values, unc = refit(cal.prob, found.values, found.selected, say)
         found, final_values, unc = _unless_on_bounds(cal.prob, found, final_values, unc, effects, fit_mask, say)
