@@ -7,7 +7,9 @@
 3. :func:`refit`: the final model refitted on the whole record, with uncertainties: "after";
 4. :func:`summarise`: what is left unexplained, and where a choice was weak.
 
-:func:`diagnose` runs them in order and returns a :class:`Diagnosis`.
+:func:`run` runs them in order and returns a :class:`Diagnosis`: the CE152 path of the one entry
+point, :func:`maglev_cosim.diagnosis.diagnose`, which writes the figures, report and calibrated FMU
+and returns the typed :class:`~.result.DiagnosisResult`.
 """
 
 from __future__ import annotations
@@ -472,9 +474,9 @@ def summarise(rec: Record, after: dict[str, float], residual_after: dict, noise:
 
 # ----------------------------------------------------------------------------- the whole
 
-def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int | None = None,
-             progress: Say | None = None, start: Mapping[str, float] | None = None) -> Diagnosis:
-    """Runs the stages on a record.
+def run(rec: Record, *, effects: Sequence[str] | None = None, workers: int | None = None,
+        progress: Say | None = None, start: Mapping[str, float] | None = None) -> Diagnosis:
+    """Runs the stages on a CE152 record (:func:`maglev_cosim.diagnosis.diagnose` is the entry point).
 
     Parameters
     ----------
