@@ -302,10 +302,10 @@ def _print_result(res: DiagnosisResult) -> None:
                        + (f"/{fit.second:.1f} %" if fit.second is not None else " %"))
     what = "y/u" if res.kind == "ce152" else "gap/current"
     print(f"verdict: {res.verdict}" + (f" (fit {what}: {', '.join(figures)})" if figures else ""))
-    for w in res.warnings:
-        print(f"warning: {w}")
     for r in res.reasons:
         print(f"  {r}")
+    for w in res.warnings:
+        print(f"warning: {w}")
     print(f"selected: {res.selected or 'none'}")
 
     def rms(x) -> str:
@@ -367,12 +367,12 @@ def cmd_fmu(a: argparse.Namespace) -> dict:
     return {"fmu": str(out)}
 
 
-def cmd_calibrate(a: argparse.Namespace) -> dict:
+def cmd_calibrate(a: argparse.Namespace) -> DiagnosisResult:
     recs = _records([*a.records, *(a.validate or ())], a.rig, a)
     train, held = recs[:len(a.records)], recs[len(a.records):]
     res = diagnose(train, validate=held, out=a.out, progress=_progress, controller=_controller_file(a, train[0].rig))
     _print_result(res)
-    return res.to_json()
+    return res
 
 
 def _controller_file(a: argparse.Namespace, rig):
@@ -386,7 +386,7 @@ def _controller_file(a: argparse.Namespace, rig):
         raise CliError(str(e)) from None
 
 
-def cmd_diagnose(a: argparse.Namespace) -> dict:
+def cmd_diagnose(a: argparse.Namespace) -> DiagnosisResult:
     (rec,) = _records([a.record], a.rig, a)       # fails before anything is written
     ctl = _controller_file(a, rec.rig)
     if rec.kind == "ce152" and ctl is not None:
@@ -396,7 +396,7 @@ def cmd_diagnose(a: argparse.Namespace) -> dict:
     res = diagnose(rec, effects=effects, out=a.out, progress=_progress, workers=a.workers, fmu=a.fmu,
                    controller=ctl, per_record=False)
     _print_result(res)
-    return res.to_json()
+    return res
 
 
 def cmd_identify(a: argparse.Namespace) -> dict:
@@ -453,7 +453,7 @@ def cmd_synth(a: argparse.Namespace) -> dict:
 
 # ----------------------------------------------------------------------------- demo
 
-def cmd_demo(a: argparse.Namespace) -> dict:
+def cmd_demo(a: argparse.Namespace) -> DiagnosisResult:
     out = Path(a.out)
     fmu = ensure_fmu(None)
     _progress(f"FMU: {fmu}")
@@ -477,18 +477,18 @@ def cmd_demo(a: argparse.Namespace) -> dict:
     return d
 
 
-def _truth_table(truth: dict, d: dict) -> str:
+def _truth_table(truth: dict, d: DiagnosisResult) -> str:
     """The planted effects of a synthetic record beside what the diagnosis estimated."""
     units = {n: row[3] for n, row in param_table().items()}
     rows = [f"{'effect':<22}{'parameter':<11}{'planted':>12}{'estimated':>12}{'± 1 sigma':>12}  unit"]
     for name, values in truth["effects"].items():
-        found = name in d["selected"]
+        found = name in d.selected
         for k, v in values.items():
-            est = d["parameters"].get(k) if found else None
-            sd = d["uncertainties"].get(k) if found else None
+            p = d.parameters.get(k) if found else None
+            est, sd = (p.value, p.sigma) if p is not None else (None, None)
             rows.append(f"{name:<22}{k:<11}{v:>12.4g}{'not found' if est is None else f'{est:.4g}':>12}"
                         f"{'' if sd is None else f'{sd:.2g}':>12}  {units.get(k, '')}")
-    extra = [e for e in d["selected"] if e not in truth["effects"]]
+    extra = [e for e in d.selected if e not in truth["effects"]]
     if extra:
         rows.append(f"selected but not planted: {', '.join(extra)}")
     return "planted truth (from the .truth.json sidecar) against the diagnosis:\n" + "\n".join(rows)

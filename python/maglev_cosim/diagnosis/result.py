@@ -17,6 +17,9 @@ import numpy as np
 
 from ..plant.fast import param_table
 
+#: A JSON object, as ``json.dumps`` takes it.
+Json = dict[str, Any]
+
 #: The keys every ``diagnosis.json`` holds, a CE152 record's or a real rig's (docs/diagnosis-json.md).
 SHARED_KEYS = ("verdict", "fit", "fit_before", "warnings", "selected", "parameters", "uncertainties", "before",
                "after", "location_evidence", "calibrated_fmu", "written")
@@ -51,7 +54,7 @@ class FreeRunFit:
     y: float
     u: float
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         return {"y": self.y, "u": self.u}
 
 
@@ -65,7 +68,7 @@ class PredictionFit:
     second: float | None
     second_name: str = "u"          #: ``u`` or ``current``
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         return {"horizon_s": self.horizon_s, "y": self.y, self.second_name: self.second}
 
 
@@ -77,7 +80,7 @@ class Fit:
     free_run: FreeRunFit | None
     prediction: PredictionFit
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         return {"free_run": self.free_run.to_json() if self.free_run else None, "prediction": self.prediction.to_json()}
 
     @classmethod
@@ -99,7 +102,7 @@ class Residual:
     rms_u: float | None = None
     horizon_s: float | None = None
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         out: dict = {"rms_y": self.rms_y}
         if self.rms_u is not None:
             out["rms_u"] = self.rms_u
@@ -123,7 +126,7 @@ class LocationEvidence:
     held_out_cost_change: float | None
     figures: dict = field(default_factory=dict)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         return {**self.figures, "effect": self.effect, "held_out_cost_change": self.held_out_cost_change}
 
     @classmethod
@@ -149,7 +152,7 @@ class HorizonSkill:
 
     WHO = ("model", "black_box", "constant_velocity")
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         return {k: getattr(self, k) for w in self.WHO for k in (w, f"{w}_worst")}
 
 
@@ -161,7 +164,7 @@ class Comparison:
     segments: int
     horizons: dict[str, HorizonSkill]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         return {"segments": self.segments, **{h: s.to_json() for h, s in self.horizons.items()}}
 
 
@@ -197,7 +200,7 @@ class RecordRef:
     file: str
     sha256: str | None = None
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         return {"file": self.file, **({"sha256": self.sha256} if self.sha256 else {})}
 
 
@@ -208,7 +211,7 @@ class CalibratedFmu:
     file: str
     records: list[RecordRef]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         return {"file": self.file, "records": [r.to_json() for r in self.records]}
 
 
@@ -242,7 +245,7 @@ class DiagnosisResult:
         """±1σ of the fitted parameters, by name."""
         return {n: p.sigma for n, p in self.parameters.items() if p.sigma is not None}
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         shared = {
             "verdict": self.verdict,
             "fit": self.fit.to_json() if self.fit else None,
