@@ -281,14 +281,13 @@ def _records(paths, rig, a: argparse.Namespace) -> list[Recording]:
     require = ("drive", "reference") if getattr(a, "controller", None) else ("drive",)
     recs = load_all(paths, rig, resample=a.resample, require=require,
                     plausibility="warn" if getattr(a, "accept_implausible", False) else "refuse")
-    if recs and recs[0].kind == "ce152":
-        for r in recs:
-            for w in r.warnings:
-                print(f"warning: {r.path}: {w}", file=sys.stderr)
+    for r in recs:
+        for w in r.warnings:
+            print(f"warning: {r.path}: {w}", file=sys.stderr)
     return recs
 
 
-def _print_result(res: DiagnosisResult) -> None:
+def _print_result(res: DiagnosisResult, recs: list[Recording] = ()) -> None:
     """What a diagnosis found, from the typed result: the verdict with its fits, the warnings and
     reasons, the selected effects with ±σ, before/after, and for a real rig each segment's skill,
     the checks of the rig file and of a declared controller, and the model / black box / naive table."""
@@ -304,8 +303,10 @@ def _print_result(res: DiagnosisResult) -> None:
     print(f"verdict: {res.verdict}" + (f" (fit {what}: {', '.join(figures)})" if figures else ""))
     for r in res.reasons:
         print(f"  {r}")
+    said = {w for r in recs for w in r.warnings}      # on stderr as the records were read
     for w in res.warnings:
-        print(f"warning: {w}")
+        if w not in said or res.kind == "ce152":
+            print(f"warning: {w}")
     print(f"selected: {res.selected or 'none'}")
 
     def rms(x) -> str:
@@ -371,7 +372,7 @@ def cmd_calibrate(a: argparse.Namespace) -> DiagnosisResult:
     recs = _records([*a.records, *(a.validate or ())], a.rig, a)
     train, held = recs[:len(a.records)], recs[len(a.records):]
     res = diagnose(train, validate=held, out=a.out, progress=_progress, controller=_controller_file(a, train[0].rig))
-    _print_result(res)
+    _print_result(res, recs)
     return res
 
 
@@ -395,7 +396,7 @@ def cmd_diagnose(a: argparse.Namespace) -> DiagnosisResult:
     effects = a.effects.split(",") if a.effects else None
     res = diagnose(rec, effects=effects, out=a.out, progress=_progress, workers=a.workers, fmu=a.fmu,
                    controller=ctl, per_record=False)
-    _print_result(res)
+    _print_result(res, [rec])
     return res
 
 
