@@ -26,6 +26,7 @@ from .locate import LOCATIONS, best_per_location
 from .metrics import nrmse_fit, psd, resid
 from .pipeline import Diagnosis
 from .replay import baseline_params
+from .result import Json
 
 
 def _sha256(path: str | Path) -> str | None:
@@ -42,7 +43,7 @@ def _calibration_date() -> str:
     return now.strftime("%Y-%m-%d")
 
 
-def calibration_data(rec: Record, d: Diagnosis) -> dict:
+def calibration_data(rec: Record, d: Diagnosis) -> Json:
     """``resources/calibration.json`` of a calibrated FMU: the source record and its hash, the date,
     the effects found, every parameter that differs from the C defaults with its ±1 standard error
     where the diagnosis estimated one, and the fit figures before and after."""

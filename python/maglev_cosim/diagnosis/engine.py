@@ -56,7 +56,7 @@ def _sha256(path: Path) -> str | None:
         return None
 
 
-def diagnose(record_or_records: Records | Sequence[Records], *, rig: Rig | str | None = None,
+def diagnose(record_or_records: Records | Sequence[Records], *, rig: Rig | str | os.PathLike | None = None,
              validate: Sequence[Records] = (), effects: Sequence[str] | bool | None = None,
              out: str | os.PathLike | None = None, progress: Say | None = None, workers: int | None = None,
              fmu: str | os.PathLike | None = None, controller=None, per_record: bool | None = None,
@@ -98,7 +98,9 @@ def diagnose(record_or_records: Records | Sequence[Records], *, rig: Rig | str |
     given = list(record_or_records) if many else [record_or_records]
     if not given:
         raise ValueError("no record to diagnose")
-    the_rig = load_rig(rig) if isinstance(rig, str) and rig != "ce152" else (rig if isinstance(rig, Rig) else None)
+    if isinstance(rig, (str, os.PathLike)):
+        rig = None if str(rig) == "ce152" else load_rig(rig)
+    the_rig = rig if rig is not None and rig.name != "ce152" else None
     recs = [_recording(r, the_rig) for r in given]
     held = [_recording(r, the_rig) for r in validate]
     kinds = {r.kind for r in [*recs, *held]}

@@ -34,6 +34,7 @@ from .metrics import nrmse_fit
 from .problem import Parameterization, Problem, cost_on, fit, residuals
 from .replay import HORIZON_S, baseline_params, estimate_noise
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
+from .result import Json
 from .verdict import Verdict, conclude, on_bounds
 
 MAX_EFFECTS = 3
@@ -73,7 +74,7 @@ class Diagnosis:
                 "separate the two well" for a in self.unexplained.get("ambiguous", [])]
         return out
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         head = {"verdict": self.verdict.verdict, "fit": self.verdict.fit, "fit_before": self.verdict.fit_before,
                 "warnings": self.warnings} if self.verdict else {}
         return {
