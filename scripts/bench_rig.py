@@ -19,8 +19,7 @@ import time
 from pathlib import Path
 
 import benchdoc
-from maglev_cosim.diagnosis import real_rig
-from maglev_cosim.rigs import load_rig
+from maglev_cosim.diagnosis import diagnose, real_rig
 
 ROOT = benchdoc.ROOT
 CALIBRATION = ("multisteps_stairs/LQR_tracking", "multisteps_stairs/PID_anti_windup", "step/MPC")
@@ -100,8 +99,8 @@ def main(argv: list[str] | None = None) -> int:
                + "".join(" --validate " + f'"$I/{n} - KF.mat"' for n in VALIDATION)
                + " --rig inteco-mls2em --out out/inteco")
     t0 = time.perf_counter()
-    res = real_rig.run(load_rig("inteco-mls2em"), cal, a.out, validate=val,
-                     progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True))
+    res = diagnose(cal, rig="inteco-mls2em", validate=val, out=a.out,
+                   progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True)).to_json()
     wall = time.perf_counter() - t0
     text = section(res, command, wall)
     print(text)

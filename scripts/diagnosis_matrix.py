@@ -38,7 +38,7 @@ import numpy as np
 
 import benchdoc
 
-from maglev_cosim.diagnosis import CATALOGUE, diagnose
+from maglev_cosim.diagnosis import CATALOGUE, pipeline
 from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS, TWINS
 from maglev_cosim.plant.params import get_params
 from maglev_cosim.records.record import read_record
@@ -159,7 +159,7 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n
         path = SYNTH(tmp / f"n{k}.csv", seed=seed, disturbance=dist)
         rec = read_record(path, plausibility="warn")
         t0 = time.perf_counter()
-        d = diagnose(rec, effects=FAMILY_EFFECTS)
+        d = pipeline.run(rec, effects=FAMILY_EFFECTS)
         dt = time.perf_counter() - t0
         after_null[seed] = {"free_run": d.after["rms_u"], "prediction": d.verdict.after.prediction_rms["u"],
                             "prediction_y": d.verdict.after.prediction_rms["y"],
@@ -190,7 +190,7 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n
         path = SYNTH(tmp / "p.csv", seed=seed, disturbance=dist, effects=planted)
         rec = read_record(path, plausibility="warn")
         t0 = time.perf_counter()
-        d = diagnose(rec, effects=FAMILY_EFFECTS)
+        d = pipeline.run(rec, effects=FAMILY_EFFECTS)
         dt = time.perf_counter() - t0
         null = after_null.get(seed)
         ratio = d.after["rms_u"] / null["free_run"] if null else float("nan")
@@ -352,7 +352,7 @@ def main() -> None:
             path = SYNTH(Path(tmp) / f"r{k}.csv", seed=a.seed, **kw)
             rec = read_record(path)
             t0 = time.perf_counter()
-            d = diagnose(rec, effects=TRIED.get(name))
+            d = pipeline.run(rec, effects=TRIED.get(name))
             dt = time.perf_counter() - t0
             est = {p: d.parameters[p] for e in d.selected for p in CATALOGUE[e].params}
             over = d.after["rms_u"] / d.noise["rms_u_from_sensor_noise"]

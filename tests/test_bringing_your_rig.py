@@ -72,4 +72,4 @@ def test_every_command_on_the_page_runs_and_gives_the_quoted_figures(tmp_path):
     assert d["selected"] == [] and d["calibrated_fmu"] is not None
     fb = d["records"][0]["force_balance"]
     assert round(fb["ohm"]["median_V_over_Ri"], 2) == 1.06 and round(100 * fb["median"]) == 100
-    assert (tmp_path / "runs" / "x200-cal" / "rigfit.json").exists() and (tmp_path / "runs" / "x200.fmu").exists()
+    assert (tmp_path / "runs" / "x200-cal" / "diagnosis.json").exists() and (tmp_path / "runs" / "x200.fmu").exists()

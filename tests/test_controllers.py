@@ -297,13 +297,13 @@ def test_a_declared_controller_file_that_does_not_fit_is_refused_where_the_recor
 def test_the_diagnosis_runs_a_record_with_a_declared_cascade_and_finds_its_lag(tmp_path):
     """A CE152 record of the cascade on a plant with a 2 ms amplifier lag (Eq. 2): every replay of
     the diagnosis runs the declared cascade, so the lag is found (measured: T_a = 2.000 ms)."""
-    from maglev_cosim.diagnosis import diagnose
+    from maglev_cosim.diagnosis import pipeline
     from maglev_cosim.records.record import read_record
 
     (tmp_path / "ctl").mkdir()
     (tmp_path / "ctl" / "cascade.toml").write_text(CE152_CASCADE)
     w = reference_signal("square", 8.0, base=0.394, amplitude=0.03, period=2.0)
     f = simulate(LAGGED, w, controller=CASCADE).to_csv(tmp_path / "rec.csv", controller_file="ctl/cascade.toml")
-    d = diagnose(read_record(f))
+    d = pipeline.run(read_record(f))
     assert "amplifier_lag" in d.selected
     assert d.parameters["T_a"] == pytest.approx(2e-3, rel=0.02)

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from maglev_cosim.diagnosis import CATALOGUE, diagnose
+from maglev_cosim.diagnosis import CATALOGUE, pipeline
 from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS, TWINS
 from maglev_cosim.records.record import read_record
 from maglev_cosim.diagnosis.replay import replay
@@ -47,7 +47,7 @@ def run_case(name: str, tmp_path_factory) -> tuple:
         path = synth_record(tmp_path_factory.mktemp(name) / "rec.csv", effects=effects, params=params, seed=SEED,
                             reference=REFERENCE.get(name, "steps"))
         rec = read_record(path)
-        d = diagnose(rec, effects=tried(name))
+        d = pipeline.run(rec, effects=tried(name))
         _cache[name] = (rec, d, effects, params)
     return _cache[name]
 
@@ -144,7 +144,7 @@ def test_a_coarse_converter_s_rounding_is_not_taken_for_a_missing_effect(tmp_pat
     dist = dict(sigma_y=1.5e-4, sigma_F_rel=0.003, tau_F_noise=0.02, F_drift_rel=0.0, tau_drift=1.0, bits=10)
     rec = read_record(synth_record(tmp_path / "q.csv", seed=SEED, disturbance=dist, effects=effects),
                       plausibility="warn")
-    d = diagnose(rec)
+    d = pipeline.run(rec)
     j = d.to_json()
     assert j["verdict"] == verdict, (d.selected, j["innovations_predictable_share"], j["warnings"])
     if effects and "delay" in effects:
@@ -162,13 +162,13 @@ def test_a_delay_near_instability_is_found_by_its_prediction_error(tmp_path):
     the fits switch to the k-step prediction, and the delay is found; what the final model leaves
     in its 20 ms predictions is at most 1.5 times what the same rig leaves without the delay."""
     rec = read_record(synth_record(tmp_path / "d.csv", effects={"delay": {"T_d": 0.004}}, seed=SEED))
-    d = diagnose(rec)
+    d = pipeline.run(rec)
     j = d.to_json()
     assert d.selected == ["delay"], (j["fit_mode"], d.selected)
     assert d.parameters["T_d"] == pytest.approx(0.004, rel=0.05)
     assert j["verdict"] == "explained", j["warnings"]
     null_rec = read_record(synth_record(tmp_path / "n.csv", seed=SEED))
-    null = diagnose(null_rec)
+    null = pipeline.run(null_rec)
     assert null.to_json()["verdict"] == "no effect"
     mine, ref = _kstep_rms(rec, d), _kstep_rms(null_rec, null)
     assert mine["y"] <= 1.5 * ref["y"] and mine["u"] <= 1.5 * ref["u"], (mine, ref)
@@ -182,7 +182,7 @@ def test_a_current_limit_that_bites_briefly_is_found(tmp_path):
     what the same rig leaves without it (issue 7, item 3)."""
     w = reference("square", 12.0, 1e-3, SEED, period=0.6)
     null_rec = read_record(synth_record(tmp_path / "n.csv", seed=SEED, reference="square", period=0.6))
-    null = diagnose(null_rec)
+    null = pipeline.run(null_rec)
     assert null.to_json()["verdict"] == "no effect"
     ref = _kstep_rms(null_rec, null)
     for i_max, share in ((0.69, 0.026), (0.66, 0.10)):
@@ -190,7 +190,7 @@ def test_a_current_limit_that_bites_briefly_is_found(tmp_path):
         assert float(np.mean(active)) == pytest.approx(share, abs=0.01)
         rec = read_record(synth_record(tmp_path / "l.csv", seed=SEED, reference="square", period=0.6,
                                        effects={"current_saturation": {"i_max": i_max}}))
-        d = diagnose(rec)
+        d = pipeline.run(rec)
         assert d.selected[:1] == ["current_saturation"], (i_max, d.selected)
         assert d.parameters["i_max"] == pytest.approx(i_max, rel=0.01)
         mine = _kstep_rms(rec, d)

@@ -281,9 +281,9 @@ def test_record_is_read_back_and_diagnosed(tmp_path):
     assert truth["settings"]["pid_offset"] == 0.3
     lsb = 1 / 2048
     assert np.max(np.abs(rec.y / lsb - np.round(rec.y / lsb))) < 1e-6 / lsb * 2
-    from maglev_cosim.diagnosis import diagnose
+    from maglev_cosim.diagnosis import pipeline
 
-    d = diagnose(rec, effects=["delay"], workers=1)
+    d = pipeline.run(rec, effects=["delay"], workers=1)
     assert d.verdict.verdict
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglev_cosim.diagnosis import diagnose
+from maglev_cosim.diagnosis import pipeline
 from maglev_cosim.diagnosis.effects import CATALOGUE, LIMIT_QUANTILES, demanded_current, limit_starts
 from maglev_cosim.diagnosis.problem import Problem
 from maglev_cosim.records.emulator_ivp import synth_record as synth_ivp
@@ -68,7 +68,7 @@ def test_current_saturation_starts_from_the_record_not_from_the_calibrated_offse
 
 def test_a_brief_current_limit_of_the_independent_emulator_is_found(limited):
     """Issue 22's case (:func:`limited`): found as ``current_saturation``, i_max within 5 %."""
-    d = diagnose(limited)
+    d = pipeline.run(limited)
     assert d.selected[:1] == ["current_saturation"], (d.selected, [(c["effect"], c["held_out_gain"])
                                                                    for c in d.candidates])
     assert d.parameters["i_max"] == pytest.approx(0.72, rel=0.05)

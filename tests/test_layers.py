@@ -23,8 +23,8 @@ LAYERS = (
     {"rigs"},                           # rig files and their loader
     {"loop"},                           # controllers, the closed loop, the FMU runner
     {"records"},                        # records of every format, the emulators, synth
-    {"diagnosis"},                      # the diagnosis engine, the replay, the real-rig calibration
-    {"report"},                         # what the diagnosis found, written; the benchmark
+    {"diagnosis"},                      # the one diagnosis engine, each path's stages and reports
+    {"report"},                         # the benchmark
     {"cli", "__main__", "__init__"},    # the command line, the public API
 )
 

@@ -130,14 +130,14 @@ def test_a_record_without_effects_of_the_independent_emulator_locates_nothing(tm
 def test_a_friction_is_never_explained_by_another_effect(tmp_path, tried):
     """The whole diagnosis of a 2 % friction (the independent emulator, its defaults): it ends
     ``coulomb_friction`` or ``unexplained: mechanics``, never ``explained`` by another effect."""
-    from maglev_cosim.diagnosis import diagnose
+    from maglev_cosim.diagnosis import pipeline
     from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
     from maglev_cosim.records.emulator_ivp import synth_record as synth_ivp
 
     rec = read_record(synth_ivp(tmp_path / "f.csv", effects={"coulomb_friction": {"F_c": 1.65e-3}}, seed=7,
                                 duration=8.0), plausibility="warn")
     effects = None if tried == "default" else [e for e in DEFAULT_EFFECTS if e != "coulomb_friction"]
-    d = diagnose(rec, effects=effects)
+    d = pipeline.run(rec, effects=effects)
     verdict = d.to_json()["verdict"]
     assert "coulomb_friction" in d.selected or verdict == "unexplained: mechanics", (d.selected, verdict)
     assert not (verdict == "explained" and "coulomb_friction" not in d.selected)

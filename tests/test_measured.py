@@ -186,7 +186,7 @@ def test_calibrate_on_two_inteco_records_and_validate_on_a_third(tmp_path):
 
     a, b, c = (str(INTECO / "multisteps_stairs" / f"{n} - KF.mat") for n in ("LQR_tracking", "MPC", "LQI"))
     assert main(["calibrate", a, b, "--validate", c, "--rig", "inteco-mls2em", "--out", str(tmp_path)]) == 0
-    d = json.loads((tmp_path / "rigfit.json").read_text())
+    d = json.loads((tmp_path / "diagnosis.json").read_text())
     assert [len(r["segments"]) for r in d["records"]] == [1, 1] and len(d["validation"]) == 1
     seg = d["records"][0]["segments"][0]["after"]
     assert set(seg["position"]) == {"5 ms", "20 ms", "50 ms"} and seg["current"]["from_actuator"] > 80

@@ -206,15 +206,13 @@ def report(tmp_path_factory) -> Path:
     plots and tables of a full report, in a few seconds): its folder."""
     from maglev_cosim.diagnosis import diagnose
     from maglev_cosim.records.record import read_record
-    from maglev_cosim.report.diagnosis_report import write_report
     from maglev_cosim.records.synth import synth_record
 
     folder = tmp_path_factory.mktemp("report")
     rec = read_record(synth_record(folder / "rec.csv", effects={"delay": {"T_d": 0.003}}, reference="square",
                                    period=1.0, duration=3.0, seed=2))
-    d = diagnose(rec, effects=["delay"], workers=1)
+    d = diagnose(rec, effects=["delay"], workers=1, out=folder / "diag")
     assert d.selected == ["delay"]
-    write_report(rec, d, folder / "diag")
     return folder / "diag"
 
 

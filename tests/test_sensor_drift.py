@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import pytest
 
-from maglev_cosim.diagnosis import diagnose
+from maglev_cosim.diagnosis import pipeline
 from maglev_cosim.records.record import read_record
 from maglev_cosim.records.synth import synth_record
 
 
 def test_a_drifting_sensor_is_found_and_its_rate_recovered(tmp_path):
     path = synth_record(tmp_path / "drift.csv", effects={"sensor_drift": {"r_y": 0.01}}, duration=8.0, seed=5)
-    d = diagnose(read_record(path), effects=["delay", "force_lag", "sensor_drift"])
+    d = pipeline.run(read_record(path), effects=["delay", "force_lag", "sensor_drift"])
     assert d.selected == ["sensor_drift"], [(c["effect"], c["held_out_gain"]) for c in d.candidates]
     assert d.parameters["r_y"] == pytest.approx(0.01, rel=0.2)
     assert d.to_json()["verdict"] == "explained"
@@ -21,5 +21,5 @@ def test_a_drifting_sensor_is_found_and_its_rate_recovered(tmp_path):
 
 def test_no_drift_is_not_found(tmp_path):
     path = synth_record(tmp_path / "none.csv", duration=8.0, seed=5)
-    d = diagnose(read_record(path), effects=["sensor_drift"])
+    d = pipeline.run(read_record(path), effects=["sensor_drift"])
     assert d.selected == []

@@ -12,14 +12,14 @@ import re
 import numpy as np
 import pytest
 
-from maglev_cosim.diagnosis import diagnose
+from maglev_cosim.diagnosis import pipeline
 from maglev_cosim.diagnosis.effects import periodic_evidence, reference_periods
 from maglev_cosim.diagnosis.problem import Problem
 from maglev_cosim.diagnosis.residual import check_controller
 from maglev_cosim.records.record import RecordError, read_record
 from maglev_cosim.diagnosis.replay import baseline_params
 from maglev_cosim.records.synth import synth_record
-from maglev_cosim.report.diagnosis_report import _fmt, write_report
+from maglev_cosim.diagnosis.ce152_report import _fmt, write_report
 
 SEED = 5
 #: A friction the default catalogue lacks: 2 % of the ball's weight, on a short staircase.
@@ -34,7 +34,7 @@ def _diagnosed(tmp_path_factory, name, effects=None, tried=TRIED, **kw):
     if name not in _cache:
         path = synth_record(tmp_path_factory.mktemp(name) / "rec.csv", seed=SEED, effects=effects, **kw)
         rec = read_record(path, plausibility="warn")
-        _cache[name] = (rec, diagnose(rec, effects=tried, workers=1))
+        _cache[name] = (rec, pipeline.run(rec, effects=tried, workers=1))
     return _cache[name]
 
 
@@ -146,7 +146,7 @@ def test_a_record_with_u_and_y_swapped_is_refused_at_once_naming_the_column(tmp_
     swapped.write_text("\n".join(body) + "\n")
     header = next(k for k, ln in enumerate(body, 1) if ln.startswith("t,"))
     with pytest.raises(RecordError) as err:
-        diagnose(read_record(swapped, plausibility="warn"))
+        pipeline.run(read_record(swapped, plausibility="warn"))
     assert (err.value.line, err.value.column) == (header, body[header - 1].split(",").index("u") * 2 + 1)
     assert "are u and y swapped?" in err.value.message and "NRMSE fit" in err.value.message
     assert not list(tmp_path.glob("*.fmu"))

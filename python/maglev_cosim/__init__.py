@@ -24,8 +24,8 @@ _API = {
     "discrete_closed_loop": "loop.design", "closed_loop_report": "loop.design",
     "FmuPlant": "loop.fmu", "FmuError": "loop.fmu",
     "Record": "records.record", "RecordError": "records.record", "read_record": "records.record",
-    "write_record": "records.record",
-    "diagnose": "diagnosis", "Diagnosis": "diagnosis", "CATALOGUE": "diagnosis",
+    "write_record": "records.record", "load": "records.load", "Recording": "records.load",
+    "diagnose": "diagnosis", "DiagnosisResult": "diagnosis", "CATALOGUE": "diagnosis",
     "nrmse_fit": "diagnosis.metrics", "resid": "diagnosis.metrics",
     "fmu_path": "_resources",
 }
@@ -34,7 +34,8 @@ __all__ = sorted(_API) + ["__version__"]
 
 if TYPE_CHECKING:
     from .loop.design import closed_loop_report, discrete_closed_loop
-    from .diagnosis import CATALOGUE, Diagnosis, diagnose
+    from .diagnosis import CATALOGUE, DiagnosisResult, diagnose
+    from .records.load import Recording, load
     from .loop.fmu import FmuError, FmuPlant
     from .plant.linear import linearize, operating_point, transfer_function
     from .loop.simulate import LoopResponse, reference_signal, simulate

@@ -17,7 +17,7 @@ import numpy as np
 
 # Imported inside functions, on purpose: matplotlib (heavy, only `step` plots).
 from . import __version__
-from .diagnosis import CATALOGUE, diagnose, real_rig
+from .diagnosis import CATALOGUE, DiagnosisResult, diagnose
 from .diagnosis.effects import DEFAULT_EFFECTS
 from .diagnosis.identify import PAPER, identify
 from .diagnosis.replay import baseline_params
@@ -32,12 +32,11 @@ from .plant.formulas import point
 from .plant.linear import linearize, operating_point, transfer_function
 from .plant.params import as_params, set_label
 from .records import emulator_ivp
-from .records.measured import MEASURED_FORMATS, read_measured, sniff
+from .records.load import Recording, WrongRig, load_all
 from .records.record import RecordError, read_record
 from .records.synth import parse_effect_spec, synth_record
 from .report.bench import run_bench
-from .report.diagnosis_report import write_report
-from .rigs import SHIPPED, load_rig
+from .rigs import load_rig
 
 
 class CliError(Exception):
@@ -275,103 +274,77 @@ def _load(path: str, implausible: bool = False):
     return rec
 
 
-def _is_measured(path: str) -> bool:
-    """A real rig's published record (an Inteco .mat, a levitador text, a text record that declares
-    its columns) rather than the CE152 record format; told from the content (``measured.sniff``)."""
-    fmt = sniff(path)
-    return fmt in MEASURED_FORMATS or (fmt is None and Path(path).suffix.lower() == ".mat")
+def _records(paths, rig, a: argparse.Namespace) -> list[Recording]:
+    """Every record of the command read (:func:`maglev_cosim.records.load.load`) before anything
+    runs: a record that does not fit ``--rig`` or lacks a column the command needs (the drive; the
+    reference of a declared controller) is refused in one line naming the file."""
+    require = ("drive", "reference") if getattr(a, "controller", None) else ("drive",)
+    recs = load_all(paths, rig, resample=a.resample, require=require,
+                    plausibility="warn" if getattr(a, "accept_implausible", False) else "refuse")
+    for r in recs:
+        for w in r.warnings:
+            print(f"warning: {r.path}: {w}", file=sys.stderr)
+    return recs
 
 
-_FORMAT_WORDS = {"inteco-mat": "an Inteco MATLAB results file", "levitador": "a levitador benchmark text record",
-                 "columns": "a text record that declares its columns"}
-
-
-def _likely_rig(path: str) -> str:
-    """``"; likely --rig NAME (...)"`` when exactly one shipped real rig fits the record's sample time
-    and travel (most positions between its stops), else ``""``. Reads the record (cheap); a record
-    that cannot be read gets ``""`` and its error comes later."""
-    try:
-        m = read_measured(path)
-    except Exception:  # the read error itself is reported where the record is used
-        return ""
-    fits = []
-    for name in SHIPPED:
-        if name == "ce152":
-            continue
-        rig = load_rig(name)
-        lo, hi = rig.stops
-        inside = float(np.mean((m.position >= lo - 1e-3) & (m.position <= hi + 1e-3)))
-        if abs(m.ts - rig.ts) <= 1e-3 * rig.ts and inside > 0.9:
-            fits.append(rig)
-    if len(fits) != 1:
-        return ""
-    rig = fits[0]
-    return (f"; likely --rig {rig.name} (its {rig.ts * 1e3:g} ms sample time and its travel "
-            f"{rig.stops[0] * 1e3:g}-{rig.stops[1] * 1e3:g} mm fit the record)")
-
-
-def _check_rig_records(paths, rig: str | None, require=(), resample: bool = False) -> None:
-    """Refuses, in one line naming the file, a record that does not fit ``--rig``: a CE152-format
-    record given a real rig, a real rig's record given none or ``ce152``; then reads each real
-    record once, so that a missing column (``require``: the drive, the reference of a declared
-    controller) is refused before anything runs."""
-    for path in paths:
-        fmt = sniff(path)
-        if fmt == "ce152" and rig not in (None, "ce152"):
-            raise CliError(f"{path} is a CE152-format record (docs/record-format.md: '# key: value' metadata, then "
-                           f"the header t,w,u,y in machine units), not a record of a real rig: --rig {rig} does not "
-                           "fit it; diagnose it without --rig")
-        if _is_measured(path) and rig in (None, "ce152"):
-            what = _FORMAT_WORDS.get(fmt, "a real rig's record")
-            if rig is None:
-                raise CliError(f"{path} is {what}, a real rig's record: name its rig with --rig (inteco-mls2em, "
-                               f"levitador, or a rig file, docs/rigs.md){_likely_rig(path)}")
-            raise CliError(f"{path} is {what}, not a CE152-format record: --rig ce152 does not fit it"
-                           f"{_likely_rig(path)}")
-        if rig not in (None, "ce152"):
-            read_measured(path, require=require, resample=resample)
-
-
-def _print_rig_result(res: dict) -> None:
-    said = set()
-    for e in [*res["records"], *res["validation"]]:     # a validation record: once per segment
-        for w in e.get("warnings", []):
-            if (e["file"], w) not in said:
-                said.add((e["file"], w))
-                print(f"warning: {e['file']}: {w}", file=sys.stderr)
-    print(f"verdict: {res['verdict']}")
-    for r in res["reasons"]:
+def _print_result(res: DiagnosisResult, recs: list[Recording] = ()) -> None:
+    """What a diagnosis found, from the typed result: the verdict with its fits, the warnings and
+    reasons, the selected effects with ±σ, before/after, and for a real rig each segment's skill,
+    the checks of the rig file and of a declared controller, and the model / black box / naive table."""
+    fit = res.fit.prediction if res.fit else None
+    free = res.fit.free_run if res.fit else None
+    figures = []
+    if free is not None:
+        figures.append(f"free run {free.y:.1f}/{free.u:.1f} %")
+    if fit is not None and fit.y is not None:
+        figures.append(f"{fit.horizon_s * 1e3:.0f} ms ahead {fit.y:.1f}"
+                       + (f"/{fit.second:.1f} %" if fit.second is not None else " %"))
+    what = "y/u" if res.kind == "ce152" else "gap/current"
+    print(f"verdict: {res.verdict}" + (f" (fit {what}: {', '.join(figures)})" if figures else ""))
+    for r in res.reasons:
         print(f"  {r}")
-    for e in res["records"]:
-        for s in e["segments"]:
-            f = s["after"]
-            cur = f.get("current") or {}
-            pos = "  ".join(f"{h}: skill {v['skill_vs_stays_put']:+.2f}" for h, v in f["position"].items())
-            print(f"{s['label']}: current from actuator {cur.get('from_actuator', float('nan')):.1f} %  {pos}")
-        fb = e.get("force_balance")
-        if fb:
-            print(f"{e['label']}: the force law carries {100 * fb['median']:.0f} % of the weight at the measured "
-                  f"gap and current (median; 10-90 %: {100 * fb['p10']:.0f}-{100 * fb['p90']:.0f} %)")
-        cc = e.get("controller_check")
-        if cc:
-            loops = "".join(f"; {k} {v['fit']:.1f} %" for k, v in cc["loops"].items())
-            cl = ", ".join(f"gap {x['gap_fit']:.1f} % / actuator {x['actuator_fit']:.1f} %" for x in e["closed_loop"])
-            print(f"{e['label']}: declared controller {res['controller']['name']}: actuator fit "
-                  f"{cc['actuator_fit']:.1f} %{loops}; closed loop 20 ms ahead: {cl or 'no segment'}")
-    for v in res["validation"]:
-        f = v["after"]
-        cur = f.get("current") or {}
-        print(f"validation {v['label']}: current {cur.get('from_actuator', float('nan')):.1f} %  "
-              + "  ".join(f"{h}: skill {p['skill_vs_stays_put']:+.2f}" for h, p in f["position"].items()))
-    comp = res.get("comparison") or {}
-    if comp:
+    said = {w for r in recs for w in r.warnings}      # on stderr as the records were read
+    for w in res.warnings:
+        if w not in said or res.kind == "ce152":
+            print(f"warning: {w}")
+    print(f"selected: {res.selected or 'none'}")
+
+    def rms(x) -> str:
+        if x is None or x.rms_y is None:
+            return "-"
+        return (f"rms_y {x.rms_y:.6f} MU" + (f", rms_u {x.rms_u:.6f} MU" if x.rms_u is not None else "")
+                + (f" ({x.horizon_s * 1e3:.0f} ms ahead)" if x.horizon_s is not None else ""))
+
+    print(f"before: {rms(res.before)}")
+    print(f"after:  {rms(res.after)}")
+    for e in res.selected:
+        for p in (CATALOGUE[e].params if e in CATALOGUE else ()):
+            if p in res.parameters and res.parameters[p].value is not None:
+                print(f"  {res.parameters[p]}")
+    for s in res.segments:
+        cur = s.current_from_actuator
+        skill = "  ".join(f"{h}: skill {k:+.2f}" for h, k in s.skill.items() if k is not None)
+        print(f"{'validation ' if s.role == 'validation' else ''}{s.label}: current from actuator "
+              f"{'-' if cur is None else f'{cur:.1f}'} %  {skill}")
+    for c in res.checks:
+        if c.force_balance:
+            med, p10, p90 = c.force_balance
+            print(f"{c.label}: the force law carries {100 * med:.0f} % of the weight at the measured gap and current "
+                  f"(median; 10-90 %: {100 * p10:.0f}-{100 * p90:.0f} %)")
+        if c.controller:
+            loops = "".join(f"; {k} {v:.1f} %" for k, v in c.loop_fits.items())
+            cl = ", ".join(f"gap {g:.1f} % / actuator {u:.1f} %" for g, u in c.closed_loop)
+            print(f"{c.label}: declared controller {c.controller}: actuator fit {c.actuator_fit:.1f} %{loops}; "
+                  f"closed loop 20 ms ahead: {cl or 'no segment'}")
+    if res.comparison:
         print("median skill against 'stays put' (worst): model / black box / constant velocity")
-        for role, c in comp.items():
-            for h, v in c.items():
-                if h != "segments":
-                    print(f"  {role} ({c['segments']}) {h:>6}: " + " / ".join(
-                        f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in ("model", "black_box", "constant_velocity")))
-    print("wrote " + ", ".join(res["written"]))
+        fmt = lambda v: "nan" if v is None else f"{v:+.2f}"  # noqa: E731
+        for c in res.comparison:
+            for h, k in c.horizons.items():
+                print(f"  {c.role} ({c.segments}) {h:>6}: " + " / ".join(
+                    f"{fmt(getattr(k, w))} ({fmt(getattr(k, w + '_worst'))})" for w in k.WHO))
+    if res.written:
+        print("wrote " + ", ".join(str(p) for p in res.written))
 
 
 def cmd_fmu(a: argparse.Namespace) -> dict:
@@ -395,13 +368,11 @@ def cmd_fmu(a: argparse.Namespace) -> dict:
     return {"fmu": str(out)}
 
 
-def cmd_calibrate(a: argparse.Namespace) -> dict:
-    rig = load_rig(a.rig)
-    _check_rig_records([*a.records, *(a.validate or ())], a.rig,
-                       require=("drive", "reference") if a.controller else ("drive",), resample=a.resample)
-    res = real_rig.run(rig, a.records, a.out, validate=a.validate or (), resample=a.resample, progress=_progress,
-              controller=_controller_file(a, rig))
-    _print_rig_result(res)
+def cmd_calibrate(a: argparse.Namespace) -> DiagnosisResult:
+    recs = _records([*a.records, *(a.validate or ())], a.rig, a)
+    train, held = recs[:len(a.records)], recs[len(a.records):]
+    res = diagnose(train, validate=held, out=a.out, progress=_progress, controller=_controller_file(a, train[0].rig))
+    _print_result(res, recs)
     return res
 
 
@@ -416,37 +387,17 @@ def _controller_file(a: argparse.Namespace, rig):
         raise CliError(str(e)) from None
 
 
-def cmd_diagnose(a: argparse.Namespace) -> dict:
-    if a.rig not in (None, "ce152") or _is_measured(a.record):
-        rig = load_rig(a.rig) if a.rig not in (None, "ce152") else None
-        _check_rig_records([a.record], a.rig, require=("drive", "reference") if a.controller else ("drive",),
-                           resample=a.resample)
-        res = real_rig.run(rig, [a.record], a.out, resample=a.resample, per_record=False, progress=_progress,
-                  json_name="diagnosis.json", controller=_controller_file(a, rig))
-        _print_rig_result(res)
-        return res
-
-    rec = _load(a.record, a.accept_implausible)          # fails before anything is written
-    fmu = ensure_fmu(a.fmu)
+def cmd_diagnose(a: argparse.Namespace) -> DiagnosisResult:
+    (rec,) = _records([a.record], a.rig, a)       # fails before anything is written
+    ctl = _controller_file(a, rec.rig)
+    if rec.kind == "ce152" and ctl is not None:
+        raise CliError(f"--controller {a.controller}: a CE152 record declares its controller in its metadata "
+                       "(docs/record-format.md); --controller is for a real rig's record")
     effects = a.effects.split(",") if a.effects else None
-    _progress(f"diagnosing {a.record}: {rec.n} samples, {rec.duration:.2f} s")
-    d = diagnose(rec, effects=effects, progress=_progress, workers=a.workers)
-    written = write_report(rec, d, Path(a.out), fmu=fmu)
-    if d.verdict is not None:
-        v = d.verdict
-        print(f"verdict: {v.verdict} (fit y/u: free run {v.fit['free_run']['y']:.1f}/{v.fit['free_run']['u']:.1f} %, "
-              f"{v.fit['prediction']['horizon_s'] * 1e3:.0f} ms ahead {v.fit['prediction']['y']:.1f}/"
-              f"{v.fit['prediction']['u']:.1f} %)")
-        for w in d.warnings:
-            print(f"warning: {w}")
-    print(f"selected: {d.selected or 'none'}")
-    print(f"before: rms_y {d.before['rms_y']:.6f} MU, rms_u {d.before['rms_u']:.6f} MU")
-    print(f"after:  rms_y {d.after['rms_y']:.6f} MU, rms_u {d.after['rms_u']:.6f} MU")
-    for e in d.selected:
-        for p in CATALOGUE[e].params:
-            print(f"  {p} = {d.parameters[p]:.6g} ± {d.uncertainties.get(p, float('nan')):.2g}")
-    print("wrote " + ", ".join(str(p) for p in written.values()))
-    return d.to_json()
+    res = diagnose(rec, effects=effects, out=a.out, progress=_progress, workers=a.workers, fmu=a.fmu,
+                   controller=ctl, per_record=False)
+    _print_result(res, [rec])
+    return res
 
 
 def cmd_identify(a: argparse.Namespace) -> dict:
@@ -503,7 +454,7 @@ def cmd_synth(a: argparse.Namespace) -> dict:
 
 # ----------------------------------------------------------------------------- demo
 
-def cmd_demo(a: argparse.Namespace) -> dict:
+def cmd_demo(a: argparse.Namespace) -> DiagnosisResult:
     out = Path(a.out)
     fmu = ensure_fmu(None)
     _progress(f"FMU: {fmu}")
@@ -527,18 +478,18 @@ def cmd_demo(a: argparse.Namespace) -> dict:
     return d
 
 
-def _truth_table(truth: dict, d: dict) -> str:
+def _truth_table(truth: dict, d: DiagnosisResult) -> str:
     """The planted effects of a synthetic record beside what the diagnosis estimated."""
     units = {n: row[3] for n, row in param_table().items()}
     rows = [f"{'effect':<22}{'parameter':<11}{'planted':>12}{'estimated':>12}{'± 1 sigma':>12}  unit"]
     for name, values in truth["effects"].items():
-        found = name in d["selected"]
+        found = name in d.selected
         for k, v in values.items():
-            est = d["parameters"].get(k) if found else None
-            sd = d["uncertainties"].get(k) if found else None
+            p = d.parameters.get(k) if found else None
+            est, sd = (p.value, p.sigma) if p is not None else (None, None)
             rows.append(f"{name:<22}{k:<11}{v:>12.4g}{'not found' if est is None else f'{est:.4g}':>12}"
                         f"{'' if sd is None else f'{sd:.2g}':>12}  {units.get(k, '')}")
-    extra = [e for e in d["selected"] if e not in truth["effects"]]
+    extra = [e for e in d.selected if e not in truth["effects"]]
     if extra:
         rows.append(f"selected but not planted: {', '.join(extra)}")
     return "planted truth (from the .truth.json sidecar) against the diagnosis:\n" + "\n".join(rows)
@@ -731,7 +682,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Exception as exc:  # one line, no traceback
 
-        kind = "" if isinstance(exc, (CliError, FmuError, RecordError, ValueError, FileNotFoundError)) \
+        kind = "" if isinstance(exc, (CliError, FmuError, RecordError, WrongRig, ValueError, FileNotFoundError)) \
             else f"{type(exc).__name__}: "
         msg = " ".join(str(exc).split())
         print(f"maglev-cosim: error: {kind}{msg}", file=sys.stderr)

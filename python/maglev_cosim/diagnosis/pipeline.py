@@ -7,7 +7,9 @@
 3. :func:`refit`: the final model refitted on the whole record, with uncertainties: "after";
 4. :func:`summarise`: what is left unexplained, and where a choice was weak.
 
-:func:`diagnose` runs them in order and returns a :class:`Diagnosis`.
+:func:`run` runs them in order and returns a :class:`Diagnosis`: the CE152 path of the one entry
+point, :func:`maglev_cosim.diagnosis.diagnose`, which writes the figures, report and calibrated FMU
+and returns the typed :class:`~.result.DiagnosisResult`.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from .metrics import nrmse_fit
 from .problem import Parameterization, Problem, cost_on, fit, residuals
 from .replay import HORIZON_S, baseline_params, estimate_noise
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
+from .result import Json
 from .verdict import Verdict, conclude, on_bounds
 
 MAX_EFFECTS = 3
@@ -71,7 +74,7 @@ class Diagnosis:
                 "separate the two well" for a in self.unexplained.get("ambiguous", [])]
         return out
 
-    def to_json(self) -> dict:
+    def to_json(self) -> Json:
         head = {"verdict": self.verdict.verdict, "fit": self.verdict.fit, "fit_before": self.verdict.fit_before,
                 "warnings": self.warnings} if self.verdict else {}
         return {
@@ -505,9 +508,9 @@ def summarise(rec: Record, after: dict[str, float], residual_after: dict, noise:
 
 # ----------------------------------------------------------------------------- the whole
 
-def diagnose(rec: Record, *, effects: Sequence[str] | None = None, workers: int | None = None,
-             progress: Say | None = None, start: Mapping[str, float] | None = None) -> Diagnosis:
-    """Runs the stages on a record.
+def run(rec: Record, *, effects: Sequence[str] | None = None, workers: int | None = None,
+        progress: Say | None = None, start: Mapping[str, float] | None = None) -> Diagnosis:
+    """Runs the stages on a CE152 record (:func:`maglev_cosim.diagnosis.diagnose` is the entry point).
 
     Parameters
     ----------

@@ -41,11 +41,12 @@ from ..plant.calibrated_fmu import calibrated_fmu
 from ..plant.fast import param_table
 from ..plant.formulas import point
 from ..plant.params import PlantParams
-from ..records.measured import Measured, Segment, levitation_segments, read_measured
+from ..records.measured import Measured, Segment, levitation_segments
 from ..records.record import RecordError
 from ..rigs import Rig
 from . import blackbox as bb
 from .metrics import nrmse_fit
+from .result import finite
 
 #: Prediction horizons of the position figures [s].
 HORIZONS_S = (0.005, 0.020, 0.050)
@@ -1129,28 +1130,22 @@ def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams
 
 # ----------------------------------------------------------------------------- the commands
 
-def _load_all(rig: Rig, paths: Sequence[str | Path], resample: bool) -> list[tuple[Measured, list[RigRecord]]]:
-    out = []
-    for p in paths:
-        m = read_measured(p, resample=resample)
-        out.append((m, prepare(rig, m)))
-    return out
-
-
-def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Sequence[str | Path] = (),
-        resample: bool = False, per_record: bool = True, progress=None, json_name: str = "rigfit.json",
-        controller=None, effects: bool = True) -> dict:
-    """Calibrates one parameter set on the records ``paths`` (all their levitation segments), reports
-    every record's figures before and after, each record's own calibration (the spread between
-    records: drift is a finding), the fit on the ``validate`` records not used, the verdict, and
-    writes ``report.md``, the JSON and the plots into ``out``. Everything is read and checked
-    before anything is written. ``controller``: a declared controller
+def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Sequence[Measured] = (),
+        per_record: bool = True, progress=None, json_name: str = "diagnosis.json", controller=None,
+        effects: bool = True) -> dict:
+    """The real-rig path's stages (:func:`maglev_cosim.diagnosis.diagnose` runs them): calibrates one
+    parameter set on ``records`` (all their levitation segments), reports every record's figures
+    before and after, each record's own calibration (the spread between records: drift is a
+    finding), the fit on the ``validate`` records not used, the verdict, and writes ``report.md``,
+    ``report.html``, the plots and the calibrated FMU into ``out``; the result dict names
+    ``json_name`` among the files, which the caller writes (from the typed result). Every record is
+    cut into segments and checked before anything is written. ``controller``: a declared controller
     (:class:`maglev_cosim.loop.controllers.ControllerFile`), checked against each record and replayed
     in closed loop (:func:`controller_check`, :func:`closed_loop_figures`). ``effects``: try the
     catalogue's effects on the calibrated model (:func:`effect_search`)."""
     say = progress or (lambda msg: None)
-    train = _load_all(rig, paths, resample)
-    held = _load_all(rig, validate, resample)
+    train = [(m, prepare(rig, m)) for m in records]
+    held = [(m, prepare(rig, m)) for m in validate]
     segs = [r for _, rs in train for r in rs]
     out = Path(out)
     result: dict = {"rig": rig.name, "rig_file": str(rig.path), "records": [], "validation": [],
@@ -1360,17 +1355,11 @@ def run(rig: Rig, paths: Sequence[str | Path], out: str | Path, *, validate: Seq
     else:
         result["calibrated_fmu"] = None   # nothing calibrated worth an FMU: the verdict says why
     result["written"] = [str(p) for p in written]
-    (out / json_name).write_text(json.dumps(_finite(result), indent=2, allow_nan=False) + "\n")
     return result
 
 
-#: The keys every ``diagnosis.json`` holds, a CE152 record's or a real rig's (docs/diagnosis-json.md).
-SHARED_KEYS = ("verdict", "fit", "fit_before", "warnings", "selected", "parameters", "uncertainties", "before",
-               "after", "location_evidence", "calibrated_fmu")
-
-
 def _shared_keys(result: dict, train, held) -> dict:
-    """The keys a real rig's result shares with the CE152 diagnosis (:data:`SHARED_KEYS`), from
+    """The keys a real rig's result shares with the CE152 diagnosis (:data:`.result.SHARED_KEYS`), from
     its own figures: ``fit`` and ``fit_before`` the median NRMSE fit % of the gap reading
     (``y``) and of the current (``current``) predicted 20 ms ahead, beside ``free_run: None``
     (an unknown controller is never run free: the plant is open-loop unstable); ``before`` and
@@ -1424,7 +1413,7 @@ def _calibrated_rig_fmu(rig: Rig, result: dict, params: PlantParams, train, out:
     docs = {"index.html": (out / "report.html").read_bytes(), "report.md": (out / "report.md").read_bytes()}
     calibrated_fmu(ensure_fmu(None), path, params.to_start_values(),
                    resources={"rig.toml": rig.path.read_bytes(),
-                              "calibration.json": (json.dumps(_finite(provenance), indent=2) + "\n").encode()},
+                              "calibration.json": (json.dumps(finite(provenance), indent=2) + "\n").encode()},
                    description=f"{rig.description}, calibrated on {', '.join(r['file'] for r in provenance['records'])} "
                                f"(maglev-cosim; verdict {result['verdict']}; resources/calibration.json)",
                    model_name=f"{rig.name} magnetic levitation, calibrated", documentation=docs,
@@ -1463,19 +1452,6 @@ def own_force_gain(rig: Rig, r: RigRecord, params: PlantParams) -> float:
     step = max(1, len(x) // 2000)
     ratio = np.median([point(params, float(a), float(b)).F for a, b in zip(x[::step], i[::step])]) / (params.m_k * params.g)
     return float(1.0 / ratio) if ratio > 0 else float("nan")
-
-
-def _finite(v):
-    """JSON-safe: non-finite numbers become null (strict JSON has no NaN or Infinity)."""
-    if isinstance(v, dict):
-        return {k: _finite(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_finite(x) for x in v]
-    if isinstance(v, (float, np.floating)):
-        return float(v) if np.isfinite(v) else None
-    if isinstance(v, np.integer):
-        return int(v)
-    return v
 
 
 def _values(c: dict) -> str:

@@ -100,9 +100,9 @@ def run_bench(*, fmu: str | Path | None = None, record_seconds: float = 10.0, di
                 t0, c0 = time.perf_counter(), _cpu_seconds()
                 d = run_diagnosis(rec)
                 t_diag, c_diag = time.perf_counter() - t0, _cpu_seconds() - c0
-                print(f"{label:<30}{t_diag:>10.1f}{c_diag:>10.1f}{len(d.candidates):>6}  {', '.join(d.selected) or '-'}")
+                print(f"{label:<30}{t_diag:>10.1f}{c_diag:>10.1f}{len(d.extra['candidates']):>6}  {', '.join(d.selected) or '-'}")
                 result["diagnosis"][label] = {"seconds": t_diag, "cpu_seconds": c_diag, "selected": d.selected,
-                                              "candidates": len(d.candidates)}
+                                              "candidates": len(d.extra["candidates"])}
     if json_path:
         Path(json_path).write_text(json.dumps(result, indent=2))
     return result

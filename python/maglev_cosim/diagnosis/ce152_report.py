@@ -1,5 +1,5 @@
-"""Writing what the diagnosis found: ``diagnosis.json``, ``report.md`` with PNG plots, and
-``maglev_calibrated.fmu`` (the FMU with the final parameters as start values, its own GUID and
+"""The CE152 path's figures, report and calibrated FMU: ``report.md`` with PNG plots, ``report.html``
+and ``maglev_calibrated.fmu`` (the FMU with the final parameters as start values, its own GUID and
 model name, the report as its documentation and ``resources/calibration.json``)."""
 
 from __future__ import annotations
@@ -16,14 +16,17 @@ import numpy as np
 
 # Imported inside functions, on purpose: matplotlib (heavy, only the plots) and lxml (fmpy's dependency).
 from .._html import write_html
-from ..diagnosis import CATALOGUE, CRITERION, Diagnosis
-from ..diagnosis.locate import LOCATIONS, best_per_location
-from ..diagnosis.metrics import nrmse_fit, psd, resid
-from ..diagnosis.replay import baseline_params
 from ..plant.calibrated_fmu import calibrated_fmu, issued_guid
 from ..plant.fast import param_table
 from ..plant.params import set_label
 from ..records.record import Record
+from .acceptance import CRITERION
+from .effects import CATALOGUE
+from .locate import LOCATIONS, best_per_location
+from .metrics import nrmse_fit, psd, resid
+from .pipeline import Diagnosis
+from .replay import baseline_params
+from .result import Json
 
 
 def _sha256(path: str | Path) -> str | None:
@@ -40,7 +43,7 @@ def _calibration_date() -> str:
     return now.strftime("%Y-%m-%d")
 
 
-def calibration_data(rec: Record, d: Diagnosis) -> dict:
+def calibration_data(rec: Record, d: Diagnosis) -> Json:
     """``resources/calibration.json`` of a calibrated FMU: the source record and its hash, the date,
     the effects found, every parameter that differs from the C defaults with its ±1 standard error
     where the diagnosis estimated one, and the fit figures before and after."""
@@ -310,17 +313,12 @@ def _verdict_sentence(d: Diagnosis) -> str:
             + f": {where}.")
 
 
-def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = None) -> dict[str, Path]:
-    """Writes ``diagnosis.json``, ``report.md``, the plots and (given the FMU) ``maglev_calibrated.fmu``."""
+def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu_out: Path | None = None,
+                 fmu_refused: bool = False) -> list[Path]:
+    """Writes ``report.md``, the plots and ``report.html`` into ``out`` (``diagnosis.json`` and the
+    calibrated FMU, :func:`write_calibrated_fmu`, are the engine's: ``fmu_out`` is where it goes,
+    ``fmu_refused`` that none is written because the calibration failed); the files written."""
     out.mkdir(parents=True, exist_ok=True)
-    written: dict[str, Path] = {}
-    data = d.to_json()
-    # no calibrated FMU of a calibration that failed: its parameters are not a model of the rig
-    failed = d.verdict is not None and d.verdict.verdict == "calibration failed"
-    fmu_out = out / "maglev_calibrated.fmu" if fmu is not None and not failed else None
-    data["calibrated_fmu"] = {"file": str(fmu_out), "records": [{"file": Path(rec.path).name}]} if fmu_out else None
-    (out / "diagnosis.json").write_text(json.dumps(data, indent=2, default=float))
-    written["json"] = out / "diagnosis.json"
     pngs = _plots(rec, d, out)
 
     units = {n: row[3] for n, row in param_table().items()}
@@ -444,7 +442,7 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
     lines += ["", "## Plots", ""]
     for p in pngs:
         lines += [f"![{p}]({p})", ""]
-    if fmu is not None and failed:
+    if fmu_refused:
         lines += ["## Calibrated FMU", "", "None written: the calibration failed, so its parameters are not a model "
                   "of the rig.", ""]
     if fmu_out is not None:
@@ -455,8 +453,4 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu: Path | None = Non
                   "±σ, fit figures, the sha256 of the record).", ""]
     lines += [f"Diagnosis took {d.elapsed:.1f} s. Machine-readable: `diagnosis.json`.", ""]
     (out / "report.md").write_text("\n".join(lines))
-    written["report"] = out / "report.md"
-    written["html"] = write_html(out / "report.md", out / "report.html")
-    if fmu_out is not None:
-        written["fmu"] = write_calibrated_fmu(rec, d, fmu, fmu_out, out)
-    return written
+    return [out / "report.md", write_html(out / "report.md", out / "report.html"), *(out / p for p in pngs)]
