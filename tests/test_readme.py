@@ -83,3 +83,11 @@ def test_relative_links_of_the_readme_and_docs_resolve():
             assert (page.parent / target).exists(), f"{page.name}: link to {target} does not resolve"
     img = root / "docs" / "img" / "step.png"
     assert img.stat().st_size < 150_000
+
+
+def test_the_readme_is_a_front_door_within_its_length():
+    """Issue 23: at most 12,000 characters, and "diagnose my record" on its first screen (the first
+    60 lines)."""
+    text = README.read_text(encoding="utf-8")
+    assert len(text) <= 12_000, f"README.md has {len(text)} characters (at most 12,000)"
+    assert "diagnose" in "\n".join(text.splitlines()[:60]).lower()
