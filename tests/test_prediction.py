@@ -204,6 +204,9 @@ def test_coloured_sensor_noise_is_found_and_white_noise_stays_white():
     white = NoiseModel(nm.q_force, nm.f_force, nm.sensor_rms)
     shares = [predictable_share(predict(rec, baseline_params(), m, horizon_s=0.0)["innov"], rec.u) for m in (white, nm)]
     assert shares[1] < 0.01 < shares[0], shares
+    # held for another model (the calibrated baseline's estimate in the verdict): the coloured part stays
+    held = estimate_noise(_noisy_record(100.0, n=2000), {**baseline_params(), "k_FV": 0.01}, sensor=nm)
+    assert (held.f_sensor, held.r_coloured) == (nm.f_sensor, nm.r_coloured)
 
     info = {}
     nm = estimate_noise(_noisy_record(0.0), baseline_params(), info=info)

@@ -179,7 +179,7 @@ COLOURED_SCREEN = 3.0
 
 
 def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool = True,
-                   info: dict | None = None) -> NoiseModel:
+                   info: dict | None = None, sensor: NoiseModel | None = None) -> NoiseModel:
     """The record's disturbance levels by maximum likelihood of the filter's innovations: the
     random force's RMS and corner and the sensor noise's RMS (Nelder-Mead over their logarithms,
     started from the reading's white noise and 0.3 % of the weight at 20 Hz).
@@ -193,23 +193,34 @@ def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool =
     1 − 0.001 and the innovations' held-out cost falls by at least 3 %; the five levels are then
     refitted on the whole record. The split is tried only when the white filter's innovations are
     correlated from one sample to the next (:data:`COLOURED_SCREEN`). A record whose sensor noise
-    is white keeps the white model, the one of before. ``info`` (a dict) receives the choice's figures."""
+    is white keeps the white model, the one of before. ``info`` (a dict) receives the choice's figures.
+
+    With ``sensor`` (a noise model with a coloured part), that coloured part is held and only the
+    random force and the white sensor noise are fitted: the sensor's noise is the record's, not the
+    model's, and a model that lacks an effect (a pickup) would otherwise take it for coloured sensor
+    noise, which makes its random force incomparable with another model's (the force growth of the
+    noise-floor rule)."""
     p = as_params(params)
     d2 = np.diff(rec.y, 2)
     r0 = max(float(1.4826 * np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0), 1e-5)
     z0 = np.log([3e-3 * p.m_k * p.g, 20.0, r0])
     lo, hi = np.log([1e-6 * p.m_k * p.g, 0.05, 1e-6]), np.log([0.5 * p.m_k * p.g, 1.0 / rec.ts, 0.05])
 
+    held = sensor is not None and sensor.coloured
+    extra = (sensor.f_sensor, sensor.r_coloured) if held else ()
+    if held:
+        z0[2] = np.log(max(min(sensor.r_sensor, 0.05), 1e-6))
+
     def cost(z: np.ndarray) -> float:
         z = np.clip(z, lo, hi)
         try:
-            return innovation_nll(rec, params, NoiseModel(*np.exp(z)))
+            return innovation_nll(rec, params, NoiseModel(*np.exp(z), *extra))
         except ValueError:
             return float("inf")
 
     res = minimize(cost, z0, method="Nelder-Mead", options={"xatol": 0.05, "fatol": 1e-4, "maxfev": 80})
-    white = NoiseModel(*(float(v) for v in np.exp(np.clip(res.x, lo, hi))))
-    if not coloured:
+    white = NoiseModel(*(float(v) for v in np.exp(np.clip(res.x, lo, hi))), *extra)
+    if not coloured or held:
         return white
     return _coloured_choice(rec, params, white, info)
 

@@ -379,13 +379,20 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     say("estimating the record's disturbances (random force on the ball, sensor noise) from the filter's "
         "innovations, for the calibrated baseline and the final model")
 
-    def model(values: Mapping[str, float], sim: Mapping[str, np.ndarray]) -> tuple[NoiseModel, ModelFigures]:
-        noise = estimate_noise(rec, values)
-        return noise, figures(rec, values, sim, noise)
-
-    # two threads: the filter runs in C, which cffi calls with the GIL released
+    # two threads: the filter runs in C, which cffi calls with the GIL released. The final model's
+    # estimate chooses whether the sensor noise has a coloured part; the sensor's noise is the
+    # record's, so the baseline's estimate holds the same coloured part (a baseline that lacks an
+    # effect would take a pickup for coloured sensor noise, and its random force would not compare)
     with ThreadPoolExecutor(max_workers=2) as pool:
-        (noise_before, before), (noise, after) = pool.map(model, (baseline, final), (sims["before"], sims["after"]))
+        job_final = pool.submit(estimate_noise, rec, final)
+        job_before = pool.submit(estimate_noise, rec, baseline, coloured=False)
+        noise = job_final.result()
+        job_after = pool.submit(figures, rec, final, sims["after"], noise)
+        noise_before = job_before.result()
+        if noise.coloured:
+            noise_before = estimate_noise(rec, baseline, sensor=noise)
+        before = figures(rec, baseline, sims["before"], noise_before)
+        after = job_after.result()
     say(f"  final model: random force {noise.q_force * 1e3:.3g} mN RMS (corner {noise.f_force:.3g} Hz), "
         f"sensor noise {noise.r_sensor:.3g} MU RMS white"
         + (f" and {noise.r_coloured:.3g} MU RMS coloured (corner {noise.f_sensor:.3g} Hz)" if noise.coloured else "")
