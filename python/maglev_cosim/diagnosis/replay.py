@@ -170,9 +170,14 @@ def innovation_nll(rec: Record, params: Mapping[str, float], noise: NoiseModel, 
     return _nll(predict(rec, params, noise, horizon_s=0.0), mask, skip)
 
 
-#: The coloured part's corner [Hz] is searched from this up to the Nyquist frequency: slower
-#: "sensor noise" is a drift of the reading, which the model's offsets and the random force own.
-F_SENSOR_MIN = 2.0
+#: The coloured part's corner [Hz] is searched from this up to the Nyquist frequency. Within the
+#: loop's bandwidth (about 30 Hz) a coloured reading error is what a model that lacks a dynamic
+#: effect leaves: a model without the record's 3 ms amplifier lag took its ringing for sensor noise
+#: with a 2 Hz corner (3e-3 MU), and a baseline without a 37 Hz pickup took the pickup for sensor
+#: noise with a 20 Hz corner. So sensor noise is coloured only above the loop's bandwidth, and a
+#: fit whose corner ends on this bound (within 1 %), or whose coloured RMS ends below a tenth of the
+#: white one (1 % of the variance), is practically off: the model stays white.
+F_SENSOR_MIN = 30.0
 #: The coloured part is tried only when the white filter's innovations have a lag-1 correlation
 #: beyond this many standard errors (1/√N) of a white sequence's.
 COLOURED_SCREEN = 3.0
@@ -186,12 +191,14 @@ def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool =
 
     Then, with ``coloured``, whether the sensor noise has a coloured part (``f_sensor``,
     ``r_coloured``), chosen by the held-out criterion of the effects (:func:`.acceptance.accept`):
-    the split of the sensor noise into a white and a coloured part, with its corner, is fitted on
+    the split of the sensor noise into a white and a coloured part, with its corner (from
+    :data:`F_SENSOR_MIN`, above the loop's bandwidth), is fitted on
     the fit blocks (alternating :data:`.acceptance.BLOCK` s) with the random force of the white fit,
     and kept only when, on the held-out blocks, its likelihood-ratio statistic against the white
     model (``N·Δ`` of the mean ``log s + e²/s``, 2 more parameters) exceeds the χ²(2) quantile at
     1 − 0.001 and the innovations' held-out cost falls by at least 3 %; the five levels are then
-    refitted on the whole record. The split is tried only when the white filter's innovations are
+    refitted on the whole record, and the white model kept when that fit ends practically off (its
+    corner on :data:`F_SENSOR_MIN`, or its RMS below a tenth of the white part's). The split is tried only when the white filter's innovations are
     correlated from one sample to the next (:data:`COLOURED_SCREEN`). A record whose sensor noise
     is white keeps the white model, the one of before. ``info`` (a dict) receives the choice's figures.
 
@@ -288,4 +295,10 @@ def _coloured_choice(rec: Record, params: Mapping[str, float], white: NoiseModel
             return float("inf")
 
     res5 = minimize(cost5, z5, method="Nelder-Mead", options={"xatol": 0.05, "fatol": 1e-4, "maxfev": 80})
-    return NoiseModel(*(float(v) for v in np.exp(np.clip(res5.x, lo5, hi5))))
+    nm = NoiseModel(*(float(v) for v in np.exp(np.clip(res5.x, lo5, hi5))))
+    off = nm.f_sensor <= 1.01 * F_SENSOR_MIN or nm.r_coloured < 0.1 * nm.r_sensor
+    if info is not None:
+        info.update({"coloured_off": off, "whole_record": nm})
+        if off:
+            info["coloured_accepted"] = False
+    return white if off else nm
