@@ -261,7 +261,7 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
 
 /* ---- prediction-error replay: the extended Kalman filter (maglev_replay.h) ---- */
 
-#define NS 6 /* x, v, i, F, d, xs (the position the sensor sees) */
+#define NS 7 /* x, v, i, F, d, xs (the position the sensor sees), c (the coloured sensor noise) */
 #define JAC_EVERY 10
 
 /* P = M P M' */
@@ -281,13 +281,14 @@ static void sandwich(double M[NS][NS], double P[NS][NS]) { /* M is only read */
         }
 }
 
-static void get_state(const MaglevPlant *m, double d, double s[NS]) {
+static void get_state(const MaglevPlant *m, double d, double c, double s[NS]) {
     s[0] = m->x;
     s[1] = m->v;
     s[2] = m->i;
     s[3] = m->F;
     s[4] = d;
     s[5] = m->xs;
+    s[6] = c;
 }
 
 /* Puts a filtered state into the plant: the ball between the stops and free (the plant finds an
@@ -418,19 +419,21 @@ int maglev_replay_closed_loop(const double *params, const MaglevController *c, c
                                               len);
 }
 
-/* The Kalman update with one scalar measurement whose row of H has the single entry h at state j:
- * gain, state (put back into the plant, d beside it), and the covariance in Joseph form,
- * P = (I - K H) P (I - K H)' + K r2 K'. */
-static void scalar_update(MaglevPlant *m, double *d, double P[NS][NS], int j, double h, double e, double r2) {
-    double S = h * h * P[j][j] + r2, K[NS], s[NS];
-    for (int i = 0; i < NS; i++) K[i] = P[i][j] * h / S;
-    get_state(m, *d, s);
+/* The Kalman update with one scalar measurement whose row of H has the entry h at state j and, when
+ * h2 != 0, the entry h2 at state j2 (the coloured sensor noise): gain, state (put back into the
+ * plant, d and c beside it), and the covariance in Joseph form, P = (I - K H) P (I - K H)' + K r2 K'. */
+static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS], int j, double h, int j2, double h2,
+                          double e, double r2) {
+    double S = h * h * P[j][j] + 2.0 * h * h2 * P[j][j2] + h2 * h2 * P[j2][j2] + r2, K[NS], s[NS];
+    for (int i = 0; i < NS; i++) K[i] = (P[i][j] * h + P[i][j2] * h2) / S;
+    get_state(m, *d, *c, s);
     for (int i = 0; i < NS; i++) s[i] += K[i] * e;
     put_state(m, s);
     *d = s[4];
+    *c = s[6];
     double IKH[NS][NS];
     for (int i = 0; i < NS; i++)
-        for (int l = 0; l < NS; l++) IKH[i][l] = (i == l) - (l == j ? K[i] * h : 0.0);
+        for (int l = 0; l < NS; l++) IKH[i][l] = (i == l) - (l == j ? K[i] * h : 0.0) - (l == j2 ? K[i] * h2 : 0.0);
     sandwich(IKH, P);
     for (int i = 0; i < NS; i++)
         for (int l = 0; l < NS; l++) P[i][l] += K[i] * r2 * K[l];
@@ -441,6 +444,16 @@ static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
         !(f->r_sensor > 0) || !isfinite(f->r_sensor) || f->horizon < 0 || f->stride < 1) {
         snprintf(msg, len, "invalid filter settings (q_force > 0 N, f_force > 0 Hz, r_sensor > 0 MU, "
                  "horizon >= 0, stride >= 1)");
+        return -1;
+    }
+    if (!(f->f_sensor >= 0) || !isfinite(f->f_sensor)) {
+        snprintf(msg, len, "invalid filter settings: f_sensor = %g Hz must be >= 0 and finite (0: white sensor noise)",
+                 f->f_sensor);
+        return -1;
+    }
+    if (f->f_sensor > 0 && (!(f->r_coloured > 0) || !isfinite(f->r_coloured))) {
+        snprintf(msg, len, "invalid filter settings: r_coloured = %g MU must be > 0 and finite when f_sensor > 0",
+                 f->r_coloured);
         return -1;
     }
     return 0;
@@ -486,10 +499,13 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
     const int current_state = maglev_param(&m, VR_T_a) > 0 || maglev_param(&m, VR_R_c) > 0;
     const int sensor_lag = maglev_param(&m, VR_T_y) > 0, ys = sensor_lag ? 5 : 0; /* the state y reads */
     const int drive_by_current = !ctl && i_meas && current_state && f->current_input;
-    const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1, sensor_lag};
-    const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg, 1e-7};
-    /* process noise besides d's own: tiny, to keep the lags' covariance well conditioned */
-    const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0, 1e-16};
+    const int coloured = f->f_sensor > 0;
+    const double b = coloured ? exp(-6.283185307179586 * f->f_sensor * ts) : 0.0;
+    const double rc2 = coloured ? f->r_coloured * f->r_coloured : 0.0;
+    const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1, sensor_lag, coloured};
+    const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg, 1e-7, 0};
+    /* process noise besides d's and c's own: tiny, to keep the lags' covariance well conditioned */
+    const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0, 1e-16, 0};
     double P[NS][NS] = {{0}};
     double dv_dx;
     maglev_sensor_volts(&m, m.x, &dv_dx);
@@ -501,7 +517,8 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
     P[4][4] = f->q_force * f->q_force;
     P[5][5] = sensor_lag ? P[0][0] : 0;
     P[0][5] = P[5][0] = sensor_lag ? P[0][0] : 0; /* at the start the sensor has settled on x */
-    double d = 0.0, A[NS][NS] = {{0}};
+    P[6][6] = rc2;
+    double d = 0.0, c = 0.0, A[NS][NS] = {{0}};
     CtlState cs;
     if (ctl) {
         const double x0[3] = {m.x, m.v, maglev_get(&m, VR_i)};
@@ -514,14 +531,14 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
         double yhat = maglev_get(&m, VR_y);
         if (fabs(yhat) < 1.0 && fabs(y[k]) < 1.0) {
             double h = 1e-7, H = (maglev_reading(&m, m.xs + h, m.time) - maglev_reading(&m, m.xs - h, m.time)) / (2 * h);
-            double e = y[k] - yhat;
+            double hc = coloured ? 1.0 : 0.0, e = y[k] - yhat - c;
             if (innov) innov[k] = e;
-            if (innov_var) innov_var[k] = H * H * P[ys][ys] + r2;
-            scalar_update(&m, &d, P, ys, H, e, r2);
+            if (innov_var) innov_var[k] = H * H * P[ys][ys] + 2.0 * H * hc * P[ys][6] + hc * hc * P[6][6] + r2;
+            scalar_update(&m, &d, &c, P, ys, H, 6, hc, e, r2);
         }
         /* measurement update with the measured current (a state of its own only with a lag or a
          * voltage drive; otherwise it is a function of the input and carries nothing new) */
-        if (i_meas && active[2]) scalar_update(&m, &d, P, 2, 1.0, i_meas[k] - m.i, r_current * r_current);
+        if (i_meas && active[2]) scalar_update(&m, &d, &c, P, 2, 1.0, 6, 0.0, i_meas[k] - m.i, r_current * r_current);
         /* the random force after both updates: its trajectory is how a drift shows (a force the
          * mechanics lacks, or a gain that changes during the run) */
         if (d_est) d_est[k] = d;
@@ -533,7 +550,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
         if (f->horizon > 0 && k % (size_t)f->stride == 0 && k + (size_t)f->horizon < n) {
             MaglevPlant cur;
             CtlState pp = cs;
-            double dd = d, uin = u[k], yj = 0.0;
+            double dd = d, cc = c, uin = u[k], yj = 0.0;
             if (copy_plant(&cur, &m, msg, len)) {
                 rc = -1;
                 break;
@@ -551,8 +568,9 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                     break;
                 }
                 dd *= a;
+                cc *= b;
                 cur.time = (double)(k + (size_t)j) * ts;
-                yj = maglev_get(&cur, VR_y);
+                yj = maglev_get(&cur, VR_y) + cc;
                 uin = ctl ? ctl_step(ctl, &pp, w[k + (size_t)j], yj, maglev_get(&cur, VR_i)) : u[k + (size_t)j];
             }
             double ij = maglev_get(&cur, VR_i);
@@ -567,7 +585,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
          * (and whenever the ball touches a stop), which makes the filter about three times cheaper */
         MaglevPlant nom, pert;
         double s0[NS], s1[NS];
-        get_state(&m, d, s0);
+        get_state(&m, d, c, s0);
         if (copy_plant(&nom, &m, msg, len)) {
             rc = -1;
             break;
@@ -577,7 +595,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             rc = -1;
             break;
         }
-        get_state(&nom, a * d, s1);
+        get_state(&nom, a * d, b * c, s1);
         int refresh = k % JAC_EVERY == 0 || nom.contact != CONTACT_NONE || m.contact != CONTACT_NONE;
         for (int j = 0; j < NS && rc == 0 && refresh; j++) {
             if (!active[j]) continue;
@@ -585,6 +603,10 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                 A[0][4] = 0.5 * ts * ts / mk;
                 A[1][4] = ts / mk;
                 A[4][4] = a;
+                continue;
+            }
+            if (j == 6) { /* c is the sensor's alone: it decays by b and moves nothing else */
+                A[6][6] = b;
                 continue;
             }
             double sp[NS];
@@ -601,14 +623,15 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                 break;
             }
             double s2[NS];
-            get_state(&pert, a * d, s2);
+            get_state(&pert, a * d, b * c, s2);
             for (int i = 0; i < NS; i++)
-                if (i != 4) A[i][j] = (s2[i] - s1[i]) / delta[j];
+                if (i != 4 && i != 6) A[i][j] = (s2[i] - s1[i]) / delta[j];
             maglev_release(&pert, &maglev_std_allocator);
         }
         maglev_release(&m, &maglev_std_allocator);
         m = nom;
         d = a * d;
+        c = b * c;
         if (rc) break;
         sandwich(A, P);
         for (int i = 0; i < NS; i++)
@@ -616,6 +639,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                 if (!active[i] || !active[j]) P[i][j] = 0.0;
         for (int i = 0; i < NS; i++) P[i][i] += active[i] ? q_extra[i] : 0.0;
         P[4][4] += f->q_force * f->q_force * (1.0 - a * a);
+        P[6][6] += rc2 * (1.0 - b * b);
         for (int i = 0; i < NS; i++)
             if (!isfinite(P[i][i])) {
                 snprintf(msg, len, "the filter diverged at sample %zu", k);

@@ -84,8 +84,14 @@ int maglev_replay_closed_loop_injected(const double *params, const MaglevControl
  * predicts the closed loop horizon samples ahead (plant + controller on the predicted readings
  * and currents, the first input being the measured u[k]). The disturbance is part of the model: a random force d
  * on the ball, a first-order Gauss-Markov process (RMS q_force, corner f_force: d[k+1] =
- * a*d[k] + w[k], a = exp(-2*pi*f_force*ts)), and white sensor noise of RMS r_sensor. The EKF
- * state is (x, v, i, F, d); i and F take part only when their lags T_a, T_F are on. */
+ * a*d[k] + w[k], a = exp(-2*pi*f_force*ts)), and sensor noise on the reading: white of RMS
+ * r_sensor, plus, when f_sensor > 0, a coloured part c, a first-order Gauss-Markov process of RMS
+ * r_coloured and corner f_sensor (c[k+1] = b*c[k] + w_c[k], b = exp(-2*pi*f_sensor*ts); the reading
+ * is the plant's plus c plus the white part), as a sensor whose noise is low-passed before the A/D
+ * samples it. The EKF state is (x, v, i, F, d, xs, c); i and F take part only when their lags T_a,
+ * T_F are on, xs with a sensor lag, c when f_sensor > 0. f_sensor = 0 (a zeroed field): white sensor
+ * noise only, the filter of before the coloured part. The k-step predictions carry c's expected
+ * decay b^j*c into the readings they predict and the controller sees. */
 typedef struct {
     double q_force;  /* [N] RMS of the random force on the ball (> 0) */
     double f_force;  /* [Hz] its corner frequency (> 0; large: white) */
@@ -95,6 +101,8 @@ typedef struct {
     int current_input; /* measured-input predictions only: 1 drives them by the measured coil current
                         * (i_meas[k + j] put into the plant at each sample of the horizon, as a
                         * regression on the measured current would use it), 0 by the actuator signal */
+    double f_sensor;   /* [Hz] corner of the coloured part of the sensor noise (>= 0; 0: white only) */
+    double r_coloured; /* [MU] RMS of the coloured part (> 0 when f_sensor > 0; unused when f_sensor = 0) */
 } MaglevFilter;
 
 /* A located correction at the mechanics: a force on the ball [N] (positive: along x, upward in

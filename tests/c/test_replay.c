@@ -48,7 +48,7 @@ static void test_other_controllers(void) {
         CHECK(maglev_replay_control(ctls[c], w, y, cur, N, pt.u, x0, u2, msg, sizeof msg) == 0, "%s", msg);
         for (int k = 0; k < N; k++) worst = fmax(worst, fabs(u2[k] - u[k]));
         CHECK(worst == 0.0, "controller %d alone on the loop's signals: off by %g MU", c, worst);
-        MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 10, 7, 0};
+        MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 10, 7, 0, 0.0, 0.0};
         CHECK(maglev_replay_predict(p, ctls[c], &f, w, y, u, N, pt.u, yp, up, NULL, NULL, msg, sizeof msg) == 0,
               "%s", msg);
         worst = 0.0;
@@ -73,6 +73,109 @@ static void test_other_controllers(void) {
               strstr(msg, "kind"), "%s", msg);
 }
 
+/* A deterministic standard normal draw (Box-Muller on a 64-bit LCG whose state the caller holds). */
+static double normal(unsigned long long *st) {
+    double u1, u2;
+    do {
+        *st = *st * 6364136223846793005ULL + 1442695040888963407ULL;
+        u1 = (double)(*st >> 11) / 9007199254740992.0;
+    } while (u1 <= 0.0);
+    *st = *st * 6364136223846793005ULL + 1442695040888963407ULL;
+    u2 = (double)(*st >> 11) / 9007199254740992.0;
+    return sqrt(-2.0 * log(u1)) * cos(6.283185307179586 * u2);
+}
+
+/* Mean of log(s) + e^2/s over the innovations from sample 100 on, and their lag-1 correlation. */
+static void innov_stats(const double *e, const double *s, double *nll, double *rho) {
+    double acc = 0.0, c0 = 0.0, c1 = 0.0;
+    int cnt = 0;
+    for (int k = 100; k < N; k++) {
+        acc += log(s[k]) + e[k] * e[k] / s[k];
+        c0 += e[k] * e[k];
+        if (k > 100) c1 += e[k] * e[k - 1];
+        cnt++;
+    }
+    *nll = acc / cnt;
+    *rho = c1 / c0;
+}
+
+/* The coloured sensor-noise state (f_sensor, r_coloured): 0 means white, bit for bit whatever
+ * r_coloured holds; on a reading with low-passed sensor noise (100 Hz, as the independent emulator
+ * makes it) the filter with that state leaves white innovations and a higher likelihood than the
+ * white filter, in all three entry points; an exact noise-free model still predicts exactly; bad
+ * settings are refused naming the field. */
+static void test_coloured_sensor_noise(void) {
+    double p[MAGLEV_NPARAMS];
+    MaglevPoint pt;
+    char msg[256];
+    settled(p, &pt);
+    MaglevPid pid = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.0, 0, 0, 0, 1};
+    MaglevController ctl = {.kind = 0, .pid = pid};
+    static double w[N], u[N], y[N], yn[N], yp[N], up[N], e[N], s[N], e0[N], s0[N], ip[N], de[N], ds[N];
+    for (int k = 0; k < N; k++) w[k] = pt.y + (k > 300 ? 0.04 : 0.0) - (k > 900 ? 0.07 : 0.0);
+    CHECK(maglev_replay_closed_loop(p, &ctl, w, N, pt.u, u, y, NULL, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
+
+    /* noise-free: the coloured filter predicts the exact model's loop exactly */
+    MaglevFilter fc = {2.5e-4, 8.0, 1e-4, 20, 3, 0, 100.0, 2e-4};
+    CHECK(maglev_replay_predict(p, &ctl, &fc, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == 0, "%s", msg);
+    double worst = 0.0;
+    for (int k = 0; k < N; k++)
+        if (!isnan(yp[k])) worst = fmax(worst, fmax(fabs(yp[k] - y[k]), fabs(up[k] - u[k])));
+    CHECK(worst < 1e-5, "coloured filter, exact noise-free model: worst error %g", worst);
+
+    /* the reading with coloured (100 Hz, 2e-4 MU) and white (1e-4 MU) noise; the input as recorded */
+    const double b = exp(-6.283185307179586 * 100.0 * 1e-3);
+    unsigned long long st = 2200;
+    double cn = 2e-4 * normal(&st);
+    for (int k = 0; k < N; k++) {
+        yn[k] = y[k] + cn + 1e-4 * normal(&st);
+        cn = b * cn + 2e-4 * sqrt(1.0 - b * b) * normal(&st);
+    }
+
+    /* 0 means white: the same innovations bit for bit whatever r_coloured holds */
+    MaglevFilter fw = {2.5e-4, 8.0, 2.24e-4, 0, 1, 0, 0.0, 0.0}, fw2 = fw;
+    fw2.r_coloured = 5.0;
+    CHECK(maglev_replay_predict(p, &ctl, &fw, w, yn, u, N, pt.u, NULL, NULL, e0, s0, msg, sizeof msg) == 0, "%s", msg);
+    CHECK(maglev_replay_predict(p, &ctl, &fw2, w, yn, u, N, pt.u, NULL, NULL, e, s, msg, sizeof msg) == 0, "%s", msg);
+    for (int k = 0; k < N; k++)
+        CHECK((isnan(e0[k]) && isnan(e[k])) || (e0[k] == e[k] && s0[k] == s[k]), "f_sensor = 0, sample %d: %g != %g",
+              k, e0[k], e[k]);
+
+    /* white against coloured, in the three entry points */
+    MaglevCorrection corr = {.n_x = 1, .x_c = 0.0032, .x_s = 1e-3, .v_s = 0.01, .v_c = 1e-3, .coef = {0.0}};
+    fc.horizon = 0;
+    for (int entry = 0; entry < 3; entry++) {
+        double nll_w, rho_w, nll_c, rho_c;
+        for (int col = 0; col < 2; col++) {
+            const MaglevFilter *f = col ? &fc : &fw;
+            int rc = entry == 0 ? maglev_replay_predict(p, &ctl, f, w, yn, u, N, pt.u, NULL, NULL, e, s, msg, sizeof msg)
+                     : entry == 1 ? maglev_replay_predict_measured(p, f, 1e-3, yn, u, NULL, 0.0, N, NULL, ip, e, s, de, ds,
+                                                                   msg, sizeof msg)
+                                  : maglev_replay_predict_corrected(p, f, &corr, 1e-3, yn, u, NULL, 0.0, N, NULL, ip, e,
+                                                                    s, de, ds, msg, sizeof msg);
+            CHECK(rc == 0, "entry %d: %s", entry, msg);
+            for (int k = 0; k < N; k++) CHECK(isfinite(e[k]) && s[k] > 0, "entry %d, sample %d: %g, %g", entry, k, e[k], s[k]);
+            innov_stats(e, s, col ? &nll_c : &nll_w, col ? &rho_c : &rho_w);
+        }
+        CHECK(rho_w > 0.2 && fabs(rho_c) < 0.1, "entry %d: lag-1 correlation of the innovations, white %g, coloured %g",
+              entry, rho_w, rho_c);
+        CHECK(nll_c < nll_w - 0.1, "entry %d: mean NLL white %g, coloured %g", entry, nll_w, nll_c);
+    }
+
+    /* refusals, naming the field */
+    MaglevFilter bad[] = {{2.5e-4, 8.0, 1e-4, 0, 1, 0, -1.0, 2e-4}, {2.5e-4, 8.0, 1e-4, 0, 1, 0, NAN, 2e-4},
+                          {2.5e-4, 8.0, 1e-4, 0, 1, 0, 100.0, 0.0}, {2.5e-4, 8.0, 1e-4, 0, 1, 0, 100.0, INFINITY}};
+    const char *field[] = {"f_sensor", "f_sensor", "r_coloured", "r_coloured"};
+    for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
+        msg[0] = 0;
+        CHECK(maglev_replay_predict(p, &ctl, &bad[k], w, yn, u, N, pt.u, NULL, NULL, e, s, msg, sizeof msg) == -1 &&
+                  strstr(msg, field[k]), "case %zu: %s", k, msg);
+        msg[0] = 0;
+        CHECK(maglev_replay_predict_measured(p, &bad[k], 1e-3, yn, u, NULL, 0.0, N, NULL, NULL, e, s, NULL, NULL, msg,
+                                             sizeof msg) == -1 && strstr(msg, field[k]), "measured, case %zu: %s", k, msg);
+    }
+}
+
 int main(void) {
     double p[MAGLEV_NPARAMS];
     MaglevPoint pt;
@@ -86,7 +189,7 @@ int main(void) {
     for (int k = 0; k < N; k++) w[k] = pt.y + (k > 300 ? 0.04 : 0.0) - (k > 900 ? 0.07 : 0.0);
     CHECK(maglev_replay_closed_loop(p, &ctl, w, N, pt.u, u, y, NULL, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
 
-    MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 20, 3, 0};
+    MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 20, 3, 0, 0.0, 0.0};
     CHECK(maglev_replay_predict(p, &ctl, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == 0, "%s", msg);
     int made = 0;
     double worst = 0.0;
@@ -152,8 +255,9 @@ int main(void) {
               strstr(msg, "r_current"), "%s", msg);
 
     /* refusals: one message, nothing computed */
-    MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1, 0}, {2.5e-4, NAN, 2.5e-4, 20, 1, 0}, {2.5e-4, 8.0, -1.0, 20, 1, 0},
-                          {2.5e-4, 8.0, 2.5e-4, -1, 1, 0}, {2.5e-4, 8.0, 2.5e-4, 20, 0, 0}};
+    MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1, 0, 0, 0}, {2.5e-4, NAN, 2.5e-4, 20, 1, 0, 0, 0},
+                          {2.5e-4, 8.0, -1.0, 20, 1, 0, 0, 0}, {2.5e-4, 8.0, 2.5e-4, -1, 1, 0, 0, 0},
+                          {2.5e-4, 8.0, 2.5e-4, 20, 0, 0, 0, 0}};
     for (size_t b = 0; b < sizeof bad / sizeof bad[0]; b++) {
         msg[0] = 0;
         CHECK(maglev_replay_predict(p, &ctl, &bad[b], w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&
@@ -168,6 +272,7 @@ int main(void) {
               strstr(msg, "k_c"), "%s", msg);
 
     test_other_controllers();
+    test_coloured_sensor_noise();
     printf("%d checks, %d failures\n", checks, failures);
     return failures ? 1 : 0;
 }

@@ -335,7 +335,8 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu_out: Path | None =
         lines += [f"The fits minimised the {d.fit_mode} error. The k-step prediction is an extended Kalman filter "
                   "on the C plant that follows the measured past, with the record's own disturbances: a random "
                   f"force of {v.noise.q_force * 1e3:.3g} mN RMS (corner {v.noise.f_force:.3g} Hz) and a sensor "
-                  f"noise of {v.noise.r_sensor:.3g} MU RMS, estimated from the innovations. What the final model "
+                  f"noise of {v.noise.r_sensor:.3g} MU RMS" + (f" white and {v.noise.r_coloured:.3g} MU RMS coloured "
+                  f"(corner {v.noise.f_sensor:.3g} Hz)" if v.noise.coloured else "") + ", estimated from the innovations. What the final model "
                   f"leaves in the innovations is {100 * v.predictable_share['after']:.1f} % predictable (baseline: "
                   f"{100 * v.predictable_share['before']:.1f} %)."]
         rule = v.noise_floor or {}

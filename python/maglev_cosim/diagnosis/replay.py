@@ -21,6 +21,7 @@ from ..loop.simulate import settled_start_vector
 from ..plant import fast, formulas
 from ..plant.params import as_params, get_params
 from ..records.record import Record
+from .acceptance import BLOCK, accept
 
 
 def baseline_params() -> dict[str, float]:
@@ -80,14 +81,33 @@ class NoiseModel:
         Its corner frequency [Hz]: small for a slow drift, large for white noise.
     r_sensor : float
         RMS of the white sensor noise on the reading [MU].
+    f_sensor : float
+        Corner [Hz] of a coloured part of the sensor noise, a first-order Gauss-Markov process on
+        the reading beside the white part (a sensor whose noise is low-passed before the A/D
+        samples it); 0: none, the sensor noise is white.
+    r_coloured : float
+        RMS of that coloured part [MU] (0 when ``f_sensor`` is 0).
     """
 
     q_force: float
     f_force: float
     r_sensor: float
+    f_sensor: float = 0.0
+    r_coloured: float = 0.0
+
+    @property
+    def coloured(self) -> bool:
+        """Whether the sensor noise has a coloured part."""
+        return self.f_sensor > 0
+
+    @property
+    def sensor_rms(self) -> float:
+        """RMS of the whole sensor noise, white and coloured [MU]."""
+        return float(np.hypot(self.r_sensor, self.r_coloured if self.coloured else 0.0))
 
     def to_json(self) -> dict[str, float]:
-        return {"q_force_N": self.q_force, "f_force_Hz": self.f_force, "r_sensor_MU": self.r_sensor}
+        return {"q_force_N": self.q_force, "f_force_Hz": self.f_force, "r_sensor_MU": self.r_sensor,
+                "f_sensor_Hz": self.f_sensor, "r_coloured_MU": self.r_coloured if self.coloured else 0.0}
 
 
 #: Default prediction horizon [s]: well inside the loop's bandwidth (about 30 Hz), long enough for
@@ -130,33 +150,155 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
     horizon = horizon_samples(horizon_s, rec.ts)
     return fast_loop.predict(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold,
                         q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizon=horizon,
-                        stride=stride)
+                        stride=stride, f_sensor=noise.f_sensor, r_coloured=noise.r_coloured)
 
 
-def innovation_nll(rec: Record, params: Mapping[str, float], noise: NoiseModel, skip: int = 200) -> float:
-    """Mean negative log-likelihood of the one-step innovations (Gaussian; constants dropped)."""
-    out = predict(rec, params, noise, horizon_s=0.0)
-    e, s = out["innov"][skip:], out["innov_var"][skip:]
+def _nll(out: Mapping[str, np.ndarray], mask: np.ndarray | None = None, skip: int = 200) -> float:
+    """Mean of ``log(s) + e²/s`` over the usable innovations from ``skip`` on (within ``mask``)."""
+    e, s = out["innov"], out["innov_var"]
     ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
+    ok[:skip] = False
+    if mask is not None:
+        ok &= mask
     return float(np.mean(np.log(s[ok]) + e[ok] ** 2 / s[ok])) if ok.any() else float("inf")
 
 
-def estimate_noise(rec: Record, params: Mapping[str, float]) -> NoiseModel:
+def innovation_nll(rec: Record, params: Mapping[str, float], noise: NoiseModel, skip: int = 200,
+                   mask: np.ndarray | None = None) -> float:
+    """Mean negative log-likelihood of the one-step innovations (Gaussian; constants dropped, times
+    2), over the samples of ``mask`` (all when None)."""
+    return _nll(predict(rec, params, noise, horizon_s=0.0), mask, skip)
+
+
+#: The coloured part's corner [Hz] is searched from this up to the Nyquist frequency. Within the
+#: loop's bandwidth (about 30 Hz) a coloured reading error is what a model that lacks a dynamic
+#: effect leaves: a model without the record's 3 ms amplifier lag took its ringing for sensor noise
+#: with a 2 Hz corner (3e-3 MU), and a baseline without a 37 Hz pickup took the pickup for sensor
+#: noise with a 20 Hz corner. So sensor noise is coloured only above the loop's bandwidth, and a
+#: fit whose corner ends on this bound (within 1 %), or whose coloured RMS ends below a tenth of the
+#: white one (1 % of the variance), is practically off: the model stays white.
+F_SENSOR_MIN = 30.0
+#: The coloured part is tried only when the white filter's innovations have a lag-1 correlation
+#: beyond this many standard errors (1/√N) of a white sequence's.
+COLOURED_SCREEN = 3.0
+
+
+def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool = True,
+                   info: dict | None = None, sensor: NoiseModel | None = None) -> NoiseModel:
     """The record's disturbance levels by maximum likelihood of the filter's innovations: the
     random force's RMS and corner and the sensor noise's RMS (Nelder-Mead over their logarithms,
-    started from the reading's white noise and 0.3 % of the weight at 20 Hz)."""
+    started from the reading's white noise and 0.3 % of the weight at 20 Hz).
+
+    Then, with ``coloured``, whether the sensor noise has a coloured part (``f_sensor``,
+    ``r_coloured``), chosen by the held-out criterion of the effects (:func:`.acceptance.accept`):
+    the split of the sensor noise into a white and a coloured part, with its corner (from
+    :data:`F_SENSOR_MIN`, above the loop's bandwidth), is fitted on
+    the fit blocks (alternating :data:`.acceptance.BLOCK` s) with the random force of the white fit,
+    and kept only when, on the held-out blocks, its likelihood-ratio statistic against the white
+    model (``N·Δ`` of the mean ``log s + e²/s``, 2 more parameters) exceeds the χ²(2) quantile at
+    1 − 0.001 and the innovations' held-out cost falls by at least 3 %; the five levels are then
+    refitted on the whole record, and the white model kept when that fit ends practically off (its
+    corner on :data:`F_SENSOR_MIN`, or its RMS below a tenth of the white part's). The split is tried only when the white filter's innovations are
+    correlated from one sample to the next (:data:`COLOURED_SCREEN`). A record whose sensor noise
+    is white keeps the white model, the one of before. ``info`` (a dict) receives the choice's figures.
+
+    With ``sensor`` (a noise model with a coloured part), that coloured part is held and only the
+    random force and the white sensor noise are fitted: the sensor's noise is the record's, not the
+    model's, and a model that lacks an effect (a pickup) would otherwise take it for coloured sensor
+    noise, which makes its random force incomparable with another model's (the force growth of the
+    noise-floor rule)."""
     p = as_params(params)
     d2 = np.diff(rec.y, 2)
     r0 = max(float(1.4826 * np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0), 1e-5)
     z0 = np.log([3e-3 * p.m_k * p.g, 20.0, r0])
     lo, hi = np.log([1e-6 * p.m_k * p.g, 0.05, 1e-6]), np.log([0.5 * p.m_k * p.g, 1.0 / rec.ts, 0.05])
 
+    held = sensor is not None and sensor.coloured
+    extra = (sensor.f_sensor, sensor.r_coloured) if held else ()
+    if held:
+        z0[2] = np.log(max(min(sensor.r_sensor, 0.05), 1e-6))
+
     def cost(z: np.ndarray) -> float:
         z = np.clip(z, lo, hi)
         try:
-            return innovation_nll(rec, params, NoiseModel(*np.exp(z)))
+            return innovation_nll(rec, params, NoiseModel(*np.exp(z), *extra))
         except ValueError:
             return float("inf")
 
     res = minimize(cost, z0, method="Nelder-Mead", options={"xatol": 0.05, "fatol": 1e-4, "maxfev": 80})
-    return NoiseModel(*(float(v) for v in np.exp(np.clip(res.x, lo, hi))))
+    white = NoiseModel(*(float(v) for v in np.exp(np.clip(res.x, lo, hi))), *extra)
+    if not coloured or held:
+        return white
+    return _coloured_choice(rec, params, white, info)
+
+
+def _coloured_choice(rec: Record, params: Mapping[str, float], white: NoiseModel, info: dict | None) -> NoiseModel:
+    """:func:`estimate_noise`'s choice of a coloured part of the sensor noise beside ``white``."""
+    fit = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    held = ~fit
+    out_w = predict(rec, params, white, horizon_s=0.0)
+    # a screen that saves the fits on white sensor noise: a coloured part the white filter lacks
+    # leaves its innovations correlated from one sample to the next
+    e = out_w["innov"][200:]
+    e = e[np.isfinite(e)] - np.mean(e[np.isfinite(e)]) if np.isfinite(e).any() else np.zeros(0)
+    rho = float(np.dot(e[1:], e[:-1]) / np.dot(e, e)) if len(e) > 2 and np.dot(e, e) > 0 else 0.0
+    if info is not None:
+        info.update({"lag1_correlation": rho, "lag1_threshold": COLOURED_SCREEN / np.sqrt(max(len(e), 1))})
+    if abs(rho) * np.sqrt(len(e)) < COLOURED_SCREEN:
+        if info is not None:
+            info.update({"coloured_tried": False, "coloured_accepted": False})
+        return white
+    nll_w_fit, nll_w_held = _nll(out_w, fit), _nll(out_w, held)
+    f_hi = 0.5 / rec.ts
+    # the white fit's sensor noise split between a white and a coloured part, from a corner of 1/10
+    # of the sample rate: log(r_white), log(r_coloured), log(f_sensor)
+    lo3, hi3 = np.log([1e-6, 1e-6, F_SENSOR_MIN]), np.log([0.05, 0.05, f_hi])
+    z3 = np.log([0.6 * white.r_sensor, 0.8 * white.r_sensor, 0.1 / rec.ts])
+
+    def model3(z: np.ndarray) -> NoiseModel:
+        rw, rc, fs = np.exp(np.clip(z, lo3, hi3))
+        return NoiseModel(white.q_force, white.f_force, float(rw), float(fs), float(rc))
+
+    def cost3(z: np.ndarray) -> float:
+        try:
+            return innovation_nll(rec, params, model3(z), mask=fit)
+        except ValueError:
+            return float("inf")
+
+    res3 = minimize(cost3, z3, method="Nelder-Mead", options={"xatol": 0.05, "fatol": 1e-4, "maxfev": 60})
+    split = model3(res3.x)
+    if not res3.fun < nll_w_fit:
+        if info is not None:
+            info.update({"coloured_tried": True, "coloured_accepted": False, "fit_nll_white": nll_w_fit,
+                         "fit_nll_coloured": float(res3.fun)})
+        return white
+    try:
+        nll_c_held = innovation_nll(rec, params, split, mask=held)
+    except ValueError:
+        return white
+    n_held = int(np.sum(held[200:]))
+    ok, figs = accept(float(np.exp(nll_w_held)), float(np.exp(nll_c_held)), n_held, 2)
+    if info is not None:
+        info.update({"coloured_tried": True, "coloured_accepted": ok, "held_out_nll_white": nll_w_held,
+                     "held_out_nll_coloured": nll_c_held, "split": split, **figs})
+    if not ok:
+        return white
+    # all five levels on the whole record, from the split
+    lo5 = np.log([1e-6 * as_params(params).m_k * as_params(params).g, 0.05, 1e-6, F_SENSOR_MIN, 1e-6])
+    hi5 = np.log([0.5 * as_params(params).m_k * as_params(params).g, 1.0 / rec.ts, 0.05, f_hi, 0.05])
+    z5 = np.log([split.q_force, split.f_force, split.r_sensor, split.f_sensor, split.r_coloured])
+
+    def cost5(z: np.ndarray) -> float:
+        try:
+            return innovation_nll(rec, params, NoiseModel(*np.exp(np.clip(z, lo5, hi5))))
+        except ValueError:
+            return float("inf")
+
+    res5 = minimize(cost5, z5, method="Nelder-Mead", options={"xatol": 0.05, "fatol": 1e-4, "maxfev": 80})
+    nm = NoiseModel(*(float(v) for v in np.exp(np.clip(res5.x, lo5, hi5))))
+    off = nm.f_sensor <= 1.01 * F_SENSOR_MIN or nm.r_coloured < 0.1 * nm.r_sensor
+    if info is not None:
+        info.update({"coloured_off": off, "whole_record": nm})
+        if off:
+            info["coloured_accepted"] = False
+    return white if off else nm

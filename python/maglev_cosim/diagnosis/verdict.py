@@ -162,11 +162,25 @@ def converter_step(v: np.ndarray) -> float:
     return q if np.max(np.abs(k - np.round(k))) < 0.1 else 0.0
 
 
+def sensor_noise(noise: NoiseModel, q_y: float, n: int, ts: float, rng: np.random.Generator) -> np.ndarray:
+    """The sensor noise of the model's own records [MU], before the A/D's rounding (step ``q_y``):
+    the white part beyond what the rounding adds (the filter's white estimate takes the rounding in),
+    plus, when the noise model has one, its coloured part, a first-order Gauss-Markov process of RMS
+    ``r_coloured`` and corner ``f_sensor`` (the filter's own model of it)."""
+    dither = float(np.sqrt(max(noise.r_sensor ** 2 - q_y ** 2 / 12, 0.0)))   # the white noise beyond rounding
+    dy = rng.standard_normal(n) * dither
+    if noise.coloured:
+        b = float(np.exp(-2 * np.pi * noise.f_sensor * ts))
+        dy += lfilter([np.sqrt(1 - b * b)], [1.0, -b], rng.standard_normal(n),
+                      zi=[b * rng.standard_normal()])[0] * noise.r_coloured
+    return dy
+
+
 def own_share(rec: Record, values: Mapping[str, float], noise: NoiseModel, steps: tuple[float, float] | None = None,
               draws: int = OWN_SHARE_DRAWS) -> float:
     """The innovations' predictable share that a model leaves on records it makes itself: its
     closed loop on the record's reference, driven by its own disturbance estimate (the filter's
-    random force on the ball, and white sensor noise), with the reading and the input rounded to
+    random force on the ball, and its sensor noise, white and coloured: :func:`sensor_noise`), with the reading and the input rounded to
     the record's converter steps (``steps``: A/D and D/A [MU]; default :func:`converter_step` of
     y and u), then replayed through the same filter. The mean over ``draws`` fixed seeds, so a
     diagnosis repeats. A coarse converter with little sensor noise makes this several %: that much
@@ -174,13 +188,12 @@ def own_share(rec: Record, values: Mapping[str, float], noise: NoiseModel, steps
     n = rec.n
     q_y, q_u = steps if steps is not None else (converter_step(rec.y), converter_step(rec.u))
     a = float(np.exp(-2 * np.pi * noise.f_force * rec.ts))
-    dither = float(np.sqrt(max(noise.r_sensor ** 2 - q_y ** 2 / 12, 0.0)))   # the sensor noise beyond rounding
     shares = []
     for seed in range(draws):
         rng = np.random.default_rng([seed, 11])
         dF = lfilter([np.sqrt(1 - a * a)], [1.0, -a], rng.standard_normal(n),
                      zi=[a * rng.standard_normal()])[0] * noise.q_force
-        sim = replay_injected(rec, values, dF=dF, dy=rng.standard_normal(n) * dither, y_step=q_y, u_step=q_u)
+        sim = replay_injected(rec, values, dF=dF, dy=sensor_noise(noise, q_y, n, rec.ts, rng), y_step=q_y, u_step=q_u)
         own = dataclasses.replace(rec, u=sim["u"], y=sim["y"])
         innov = predict(own, values, noise, horizon_s=0.0)["innov"]    # the innovations only: no k-step runs
         shares.append(predictable_share(innov, own.u))
@@ -194,11 +207,10 @@ def _own_records(rec: Record, values: Mapping[str, float], noise: NoiseModel, st
     q_y, q_u = steps
     n = rec.n
     a = float(np.exp(-2 * np.pi * noise.f_force * rec.ts))
-    dither = float(np.sqrt(max(noise.r_sensor ** 2 - q_y ** 2 / 12, 0.0)))
     rng = np.random.default_rng([seed, 23])
     dF = lfilter([np.sqrt(1 - a * a)], [1.0, -a], rng.standard_normal(n),
                  zi=[a * rng.standard_normal()])[0] * noise.q_force
-    sim = replay_injected(rec, values, dF=dF, dy=rng.standard_normal(n) * dither, y_step=q_y, u_step=q_u)
+    sim = replay_injected(rec, values, dF=dF, dy=sensor_noise(noise, q_y, n, rec.ts, rng), y_step=q_y, u_step=q_u)
     return dataclasses.replace(rec, u=sim["u"], y=sim["y"]), sim
 
 
@@ -367,15 +379,24 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     say("estimating the record's disturbances (random force on the ball, sensor noise) from the filter's "
         "innovations, for the calibrated baseline and the final model")
 
-    def model(values: Mapping[str, float], sim: Mapping[str, np.ndarray]) -> tuple[NoiseModel, ModelFigures]:
-        noise = estimate_noise(rec, values)
-        return noise, figures(rec, values, sim, noise)
-
-    # two threads: the filter runs in C, which cffi calls with the GIL released
+    # two threads: the filter runs in C, which cffi calls with the GIL released. The final model's
+    # estimate chooses whether the sensor noise has a coloured part; the sensor's noise is the
+    # record's, so the baseline's estimate holds the same coloured part (a baseline that lacks an
+    # effect would take a pickup for coloured sensor noise, and its random force would not compare)
     with ThreadPoolExecutor(max_workers=2) as pool:
-        (noise_before, before), (noise, after) = pool.map(model, (baseline, final), (sims["before"], sims["after"]))
+        job_final = pool.submit(estimate_noise, rec, final)
+        job_before = pool.submit(estimate_noise, rec, baseline, coloured=False)
+        noise = job_final.result()
+        job_after = pool.submit(figures, rec, final, sims["after"], noise)
+        noise_before = job_before.result()
+        if noise.coloured:
+            noise_before = estimate_noise(rec, baseline, sensor=noise)
+        before = figures(rec, baseline, sims["before"], noise_before)
+        after = job_after.result()
     say(f"  final model: random force {noise.q_force * 1e3:.3g} mN RMS (corner {noise.f_force:.3g} Hz), "
-        f"sensor noise {noise.r_sensor:.3g} MU RMS; k-step prediction over {HORIZON_S * 1e3:.0f} ms")
+        f"sensor noise {noise.r_sensor:.3g} MU RMS white"
+        + (f" and {noise.r_coloured:.3g} MU RMS coloured (corner {noise.f_sensor:.3g} Hz)" if noise.coloured else "")
+        + f"; k-step prediction over {HORIZON_S * 1e3:.0f} ms")
     warnings: list[str] = []
     (sb, pb), (sf, pf) = on_bounds(baseline), on_bounds(final)
     bounds = sf       # the final model's: the calibration failed

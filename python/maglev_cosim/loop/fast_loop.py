@@ -66,12 +66,13 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
 
 def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w: np.ndarray, y: np.ndarray,
             u: np.ndarray, u_hold: float, *, q_force: float, f_force: float, r_sensor: float, horizon: int,
-            stride: int = 1) -> dict[str, np.ndarray]:
+            stride: int = 1, f_sensor: float = 0.0, r_coloured: float = 0.0) -> dict[str, np.ndarray]:
     """The prediction-error replay in one C call (``maglev_replay_predict``, ``c/maglev_replay.h``):
     an extended Kalman filter on the plant, driven by the measured ``u`` and corrected by the
     measured ``y`` [MU], predicting the closed loop ``horizon`` samples ahead from every
     ``stride``-th sample. ``q_force`` [N] and ``f_force`` [Hz]: RMS and corner of the random force
-    on the ball; ``r_sensor`` [MU]: RMS of the sensor noise. Returns arrays ``y_pred``, ``u_pred``
+    on the ball; ``r_sensor`` [MU]: RMS of the white sensor noise; ``f_sensor`` [Hz], ``r_coloured``
+    [MU]: corner and RMS of a coloured part beside it (``f_sensor`` 0: none). Returns arrays ``y_pred``, ``u_pred``
     (NaN where no prediction ends), ``innov`` and ``innov_var`` (one-step innovations [MU] and
     their variances [MU²])."""
     m = fast._lib()
@@ -81,7 +82,7 @@ def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w
     if any(len(a) != n for a in arrays):
         raise ValueError("w, y and u must have the same length")
     out = {k: np.empty(n) for k in ("y_pred", "u_pred", "innov", "innov_var")}
-    filt = fast._filter(m, q_force, f_force, r_sensor, horizon, stride)
+    filt = fast._filter(m, q_force, f_force, r_sensor, horizon, stride, False, f_sensor, r_coloured)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     rc = m.lib.maglev_replay_predict(ptr(pv), _controller(m, pid), filt,

@@ -146,17 +146,21 @@ def check_params(params: Mapping[str, float] | None) -> None:
 
 
 def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int,
-            current_input: bool = False):
-    """The C filter settings (``MaglevFilter``, ``c/maglev_replay.h``) of both prediction entry points."""
+            current_input: bool = False, f_sensor: float = 0.0, r_coloured: float = 0.0):
+    """The C filter settings (``MaglevFilter``, ``c/maglev_replay.h``) of both prediction entry points.
+    ``f_sensor`` [Hz], ``r_coloured`` [MU]: corner and RMS of the coloured part of the sensor noise
+    (``f_sensor`` 0: white only)."""
     return m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
                                         "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride),
-                                        "current_input": int(bool(current_input))})
+                                        "current_input": int(bool(current_input)), "f_sensor": float(f_sensor),
+                                        "r_coloured": float(r_coloured)})
 
 
 def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.ndarray, u: np.ndarray, *, ts: float,
                      q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,
-                     current_input: bool = False, correction: Mapping | None = None) -> dict[str, np.ndarray]:
+                     current_input: bool = False, correction: Mapping | None = None, f_sensor: float = 0.0,
+                     r_coloured: float = 0.0) -> dict[str, np.ndarray]:
     """The prediction-error replay of a record whose controller is unknown, in one C call
     (``maglev_replay_predict_measured``): the filter follows the measured reading ``y`` [MU] (and
     the measured coil ``current`` [A], white noise of RMS ``r_current``, when given) and predicts
@@ -167,7 +171,8 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     [N]: the filtered random force on the ball and its standard deviation at every sample.
     ``correction``: a located correction at the mechanics (``MaglevCorrection``: ``n_x``, ``x_c``,
     ``x_s``, ``v_s``, ``v_c``, ``coef``), a force that is a function of position and velocity, in the
-    filter's model and its predictions (``maglev_replay_predict_corrected``)."""
+    filter's model and its predictions (``maglev_replay_predict_corrected``). ``f_sensor`` [Hz],
+    ``r_coloured`` [MU]: the coloured part of the sensor noise beside the white ``r_sensor`` (0: none)."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
     arrays = [np.ascontiguousarray(a, dtype=float) for a in (y, u)]
@@ -176,7 +181,7 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     if len(arrays[1]) != n or (cur is not None and len(cur) != n):
         raise ValueError("y, u and the current must have the same length")
     out = {k: np.empty(n) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")}
-    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input)
+    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input, f_sensor, r_coloured)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     if correction is not None and int(correction["n_x"]) > 0:
