@@ -464,11 +464,24 @@ static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
 static int predict(const double *params, const MaglevController *ctl, const MaglevCorrection *corr, double ts,
                    const MaglevFilter *f, const double *w,
                    const double *y, const double *u, const double *i_meas, double r_current, size_t n,
-                   double u_hold, double *y_pred, double *u_pred, double *i_pred, double *innov,
-                   double *innov_var, double *d_est, double *d_sd, char *msg, size_t len) {
+                   double u_hold, int n_h, const int *horizons, double *y_pred, double *u_pred, double *i_pred,
+                   double *innov, double *innov_var, double *d_est, double *d_sd, char *msg, size_t len) {
     MaglevPlant m;
     if ((ctl && ctl_check(ctl, u_hold, msg, len)) || filter_check(f, msg, len) || correction_check(corr, msg, len))
         return -1;
+    /* the horizons: one trajectory from each stride-th sample to the longest, read at each */
+    int h_max = 0;
+    if (n_h < 1 || n_h > MAGLEV_MAX_HORIZONS || !horizons) {
+        snprintf(msg, len, "between 1 and %d horizons needed, got %d", MAGLEV_MAX_HORIZONS, n_h);
+        return -1;
+    }
+    for (int q = 0; q < n_h; q++) {
+        if (horizons[q] < 0 || (n_h > 1 && horizons[q] < 1)) {
+            snprintf(msg, len, "horizon %d must be >= 1 (or a single horizon 0: filter only)", horizons[q]);
+            return -1;
+        }
+        if (horizons[q] > h_max) h_max = horizons[q];
+    }
     if (!ctl && (!(ts > 0) || !isfinite(ts) || !isfinite(u_hold))) {
         snprintf(msg, len, "sample time %g s must be > 0 and the initial input finite", ts);
         return -1;
@@ -482,9 +495,11 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             snprintf(msg, len, "sample %zu: a measured signal (w, y, u or the current) is not finite", k);
             return -1;
         }
-        if (y_pred) y_pred[k] = NAN;
-        if (u_pred) u_pred[k] = NAN;
-        if (i_pred) i_pred[k] = NAN;
+        for (int q = 0; q < n_h; q++) {
+            if (y_pred) y_pred[(size_t)q * n + k] = NAN;
+            if (u_pred) u_pred[(size_t)q * n + k] = NAN;
+            if (i_pred) i_pred[(size_t)q * n + k] = NAN;
+        }
         if (innov) innov[k] = NAN;
         if (innov_var) innov_var[k] = NAN;
         if (d_est) d_est[k] = NAN;
@@ -547,7 +562,11 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
          * predictions */
         if (ctl) (void)ctl_step(ctl, &cs, w[k], y[k], i_meas ? i_meas[k] : maglev_get(&m, VR_i));
         /* prediction from here */
-        if (f->horizon > 0 && k % (size_t)f->stride == 0 && k + (size_t)f->horizon < n) {
+        /* (a single horizon predicts only from where it ends inside the record; several horizons
+         * each end where the record allows, the same predictions as one call per horizon) */
+        int h_run = h_max;
+        if (n_h > 1 && k + (size_t)h_run >= n) h_run = (int)(n - 1 - k);
+        if (h_run > 0 && k % (size_t)f->stride == 0 && k + (size_t)h_run < n) {
             MaglevPlant cur;
             CtlState pp = cs;
             double dd = d, cc = c, uin = u[k], yj = 0.0;
@@ -555,7 +574,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                 rc = -1;
                 break;
             }
-            for (int j = 1; j <= f->horizon; j++) {
+            for (int j = 1; j <= h_run; j++) {
                 cur.time = (double)(k + (size_t)j - 1) * ts;
                 if (drive_by_current && j > 1) {
                     /* the measured current at the sample's start; the actuator signal still moves
@@ -572,13 +591,16 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                 cur.time = (double)(k + (size_t)j) * ts;
                 yj = maglev_get(&cur, VR_y) + cc;
                 uin = ctl ? ctl_step(ctl, &pp, w[k + (size_t)j], yj, maglev_get(&cur, VR_i)) : u[k + (size_t)j];
+                for (int q = 0; q < n_h; q++) {
+                    if (horizons[q] != j) continue;
+                    size_t at = (size_t)q * n + k + (size_t)j;
+                    if (y_pred) y_pred[at] = yj;
+                    if (u_pred && ctl) u_pred[at] = uin;
+                    if (i_pred) i_pred[at] = maglev_get(&cur, VR_i);
+                }
             }
-            double ij = maglev_get(&cur, VR_i);
             maglev_release(&cur, &maglev_std_allocator);
             if (rc) break;
-            if (y_pred) y_pred[k + (size_t)f->horizon] = yj;
-            if (u_pred && ctl) u_pred[k + (size_t)f->horizon] = uin;
-            if (i_pred) i_pred[k + (size_t)f->horizon] = ij;
         }
         /* time update: the nominal step, and its Jacobian by finite differences; the Jacobian
          * changes slowly along a levitating record, so it is refreshed every JAC_EVERY samples
@@ -657,22 +679,31 @@ int maglev_replay_predict(const double *params, const MaglevController *c, const
         snprintf(msg, len, "no controller given (maglev_replay_predict_measured replays without one)");
         return -1;
     }
-    return predict(params, c, NULL, c->pid.ts, f, w, y, u, NULL, 0.0, n, u_hold, y_pred, u_pred, NULL, innov, innov_var,
-                   NULL, NULL, msg, len);
+    return predict(params, c, NULL, c->pid.ts, f, w, y, u, NULL, 0.0, n, u_hold, 1, &f->horizon, y_pred, u_pred, NULL,
+                   innov, innov_var, NULL, NULL, msg, len);
 }
 
 int maglev_replay_predict_measured(const double *params, const MaglevFilter *f, double ts, const double *y,
                                    const double *u, const double *i_meas, double r_current, size_t n,
                                    double *y_pred, double *i_pred, double *innov, double *innov_var, double *d_est,
                                    double *d_sd, char *msg, size_t len) {
-    return predict(params, NULL, NULL, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, y_pred, NULL, i_pred,
-                   innov, innov_var, d_est, d_sd, msg, len);
+    return predict(params, NULL, NULL, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, 1, &f->horizon, y_pred,
+                   NULL, i_pred, innov, innov_var, d_est, d_sd, msg, len);
 }
 
 int maglev_replay_predict_corrected(const double *params, const MaglevFilter *f, const MaglevCorrection *corr,
                                     double ts, const double *y, const double *u, const double *i_meas,
                                     double r_current, size_t n, double *y_pred, double *i_pred, double *innov,
                                     double *innov_var, double *d_est, double *d_sd, char *msg, size_t len) {
-    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, y_pred, NULL, i_pred,
-                   innov, innov_var, d_est, d_sd, msg, len);
+    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, 1, &f->horizon, y_pred,
+                   NULL, i_pred, innov, innov_var, d_est, d_sd, msg, len);
+}
+
+int maglev_replay_predict_horizons(const double *params, const MaglevFilter *f, const MaglevCorrection *corr,
+                                   double ts, const double *y, const double *u, const double *i_meas,
+                                   double r_current, size_t n, int n_h, const int *horizons, double *y_pred,
+                                   double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
+                                   char *msg, size_t len) {
+    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, n_h, horizons, y_pred,
+                   NULL, i_pred, innov, innov_var, d_est, d_sd, msg, len);
 }

@@ -152,6 +152,19 @@ int maglev_replay_predict_corrected(const double *params, const MaglevFilter *fi
                                     double r_current, size_t n, double *y_pred, double *i_pred, double *innov,
                                     double *innov_var, double *d_est, double *d_sd, char *msg, size_t msglen);
 
+/* The most horizons maglev_replay_predict_horizons takes in one call. */
+#define MAGLEV_MAX_HORIZONS 8
+
+/* maglev_replay_predict_corrected at n_h horizons (samples, each >= 1; filter->horizon is not
+ * used) in one pass: one trajectory from every stride-th sample to the longest horizon, read at
+ * each; y_pred and i_pred hold n_h rows of n (row q: horizons[q]), each the same as a call with
+ * that horizon alone, but the filter runs once and the shorter horizons cost nothing more. */
+int maglev_replay_predict_horizons(const double *params, const MaglevFilter *filter, const MaglevCorrection *corr,
+                                   double ts, const double *y, const double *u, const double *i_meas,
+                                   double r_current, size_t n, int n_h, const int *horizons, double *y_pred,
+                                   double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
+                                   char *msg, size_t msglen);
+
 /* The plant driven by a given input sequence; y[k] is read at t_k before u_in[k] is applied;
  * u_in[0] is also the input before t = 0. */
 int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, double ts, double *y,

@@ -254,6 +254,33 @@ int main(void) {
     CHECK(maglev_replay_predict_measured(p, &f, 1e-3, y, u, cur, 0.0, N, yp, ip, NULL, NULL, NULL, NULL, msg, sizeof msg) == -1 &&
               strstr(msg, "r_current"), "%s", msg);
 
+    /* several horizons in one pass: each row equals the call with that horizon alone, also where a
+     * shorter horizon's predictions end past the longest one's last start */
+    {
+        static double yh[3 * N], ih[3 * N], y1[N], i1[N];
+        const int hz[3] = {5, 20, 50};
+        CHECK(maglev_replay_predict_horizons(q, &f, NULL, 1e-3, y, u, cur, 1e-3, N, 3, hz, yh, ih, NULL, NULL, NULL,
+                                             NULL, msg, sizeof msg) == 0, "%s", msg);
+        for (int r = 0; r < 3; r++) {
+            MaglevFilter g = f;
+            g.horizon = hz[r];
+            CHECK(maglev_replay_predict_measured(q, &g, 1e-3, y, u, cur, 1e-3, N, y1, i1, NULL, NULL, NULL, NULL, msg,
+                                                 sizeof msg) == 0, "%s", msg);
+            int same = 1;
+            for (int k = 0; k < N; k++) {
+                double a = yh[r * N + k], b = y1[k], c = ih[r * N + k], d2 = i1[k];
+                same &= (isnan(a) && isnan(b)) || a == b;
+                same &= (isnan(c) && isnan(d2)) || c == d2;
+            }
+            CHECK(same, "horizon %d: one pass differs from the single call", hz[r]);
+        }
+        const int none[2] = {5, 0};
+        CHECK(maglev_replay_predict_horizons(q, &f, NULL, 1e-3, y, u, cur, 1e-3, N, 2, none, yh, ih, NULL, NULL, NULL,
+                                             NULL, msg, sizeof msg) == -1 && strstr(msg, "horizon 0"), "%s", msg);
+        CHECK(maglev_replay_predict_horizons(q, &f, NULL, 1e-3, y, u, cur, 1e-3, N, 0, hz, yh, ih, NULL, NULL, NULL,
+                                             NULL, msg, sizeof msg) == -1 && strstr(msg, "horizons needed"), "%s", msg);
+    }
+
     /* refusals: one message, nothing computed */
     MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1, 0, 0, 0}, {2.5e-4, NAN, 2.5e-4, 20, 1, 0, 0, 0},
                           {2.5e-4, 8.0, -1.0, 20, 1, 0, 0, 0}, {2.5e-4, 8.0, 2.5e-4, -1, 1, 0, 0, 0},

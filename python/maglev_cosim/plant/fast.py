@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import re
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from types import SimpleNamespace
 from typing import Protocol
 
@@ -195,6 +195,44 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     rc = call(ptr(pv), filt, float(ts), *(ptr(a) for a in arrays),
               m.ffi.NULL if cur is None else ptr(cur), float(r_current), n,
               *(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")), msg, 256)
+    if rc != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return out
+
+
+def predict_horizons(params: StartValues | Mapping[str, float] | None, y: np.ndarray, u: np.ndarray, *, ts: float,
+                     q_force: float, f_force: float, r_sensor: float, horizons: Sequence[int], stride: int = 1,
+                     current: np.ndarray | None = None, r_current: float = 0.0,
+                     correction: Mapping | None = None) -> dict[str, np.ndarray]:
+    """:func:`predict_measured` at several ``horizons`` [samples] in one pass
+    (``maglev_replay_predict_horizons``): the filter runs once and each prediction's trajectory to
+    the longest horizon is read at every one, so the result equals one call per horizon at the
+    cost of the longest alone. ``y_pred`` and ``i_pred`` have one row per horizon; ``innov``,
+    ``innov_var``, ``d``, ``d_sd`` as in :func:`predict_measured`."""
+    m = _lib()
+    pv = _param_vector(_as_mapping(params))
+    arrays = [np.ascontiguousarray(a, dtype=float) for a in (y, u)]
+    n = len(arrays[0])
+    cur = None if current is None else np.ascontiguousarray(current, dtype=float)
+    if len(arrays[1]) != n or (cur is not None and len(cur) != n):
+        raise ValueError("y, u and the current must have the same length")
+    hs = [int(h) for h in horizons]
+    out = {k: np.empty((len(hs), n)) for k in ("y_pred", "i_pred")}
+    out.update({k: np.empty(n) for k in ("innov", "innov_var", "d", "d_sd")})
+    filt = _filter(m, q_force, f_force, r_sensor, max(hs, default=0), stride, False)
+    msg = m.ffi.new("char[256]")
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    corr = m.ffi.NULL
+    if correction is not None and int(correction["n_x"]) > 0:
+        coef = [float(v) for v in correction["coef"]]
+        corr = m.ffi.new("MaglevCorrection *", {"n_x": int(correction["n_x"]), "x_c": float(correction["x_c"]),
+                                                 "x_s": float(correction["x_s"]), "v_s": float(correction["v_s"]),
+                                                 "v_c": float(correction["v_c"]), "coef": coef + [0.0] * (12 - len(coef))})
+    rc = m.lib.maglev_replay_predict_horizons(ptr(pv), filt, corr, float(ts), *(ptr(a) for a in arrays),
+                                              m.ffi.NULL if cur is None else ptr(cur), float(r_current), n, len(hs),
+                                              m.ffi.new("int[]", hs), *(ptr(out[k]) for k in
+                                                                        ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")),
+                                              msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return out
