@@ -156,6 +156,27 @@ def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float,
                                         "r_coloured": float(r_coloured)})
 
 
+def _measured_inputs(y: np.ndarray, u: np.ndarray, current: np.ndarray | None
+                     ) -> tuple[list[np.ndarray], int, np.ndarray | None]:
+    """``y``, ``u`` and the optional ``current`` as contiguous float arrays of one length ``n``."""
+    arrays = [np.ascontiguousarray(a, dtype=float) for a in (y, u)]
+    n = len(arrays[0])
+    cur = None if current is None else np.ascontiguousarray(current, dtype=float)
+    if len(arrays[1]) != n or (cur is not None and len(cur) != n):
+        raise ValueError("y, u and the current must have the same length")
+    return arrays, n, cur
+
+
+def _correction(m: SimpleNamespace, correction: Mapping | None):
+    """The located correction at the mechanics as a ``MaglevCorrection *`` (``NULL``: none)."""
+    if correction is None or int(correction["n_x"]) <= 0:
+        return m.ffi.NULL
+    coef = [float(v) for v in correction["coef"]]
+    return m.ffi.new("MaglevCorrection *", {"n_x": int(correction["n_x"]), "x_c": float(correction["x_c"]),
+                                            "x_s": float(correction["x_s"]), "v_s": float(correction["v_s"]),
+                                            "v_c": float(correction["v_c"]), "coef": coef + [0.0] * (12 - len(coef))})
+
+
 def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.ndarray, u: np.ndarray, *, ts: float,
                      q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,
@@ -175,26 +196,17 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     ``r_coloured`` [MU]: the coloured part of the sensor noise beside the white ``r_sensor`` (0: none)."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
-    arrays = [np.ascontiguousarray(a, dtype=float) for a in (y, u)]
-    n = len(arrays[0])
-    cur = None if current is None else np.ascontiguousarray(current, dtype=float)
-    if len(arrays[1]) != n or (cur is not None and len(cur) != n):
-        raise ValueError("y, u and the current must have the same length")
+    arrays, n, cur = _measured_inputs(y, u, current)
     out = {k: np.empty(n) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")}
     filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input, f_sensor, r_coloured)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    if correction is not None and int(correction["n_x"]) > 0:
-        coef = [float(v) for v in correction["coef"]]
-        corr = m.ffi.new("MaglevCorrection *", {"n_x": int(correction["n_x"]), "x_c": float(correction["x_c"]),
-                                                 "x_s": float(correction["x_s"]), "v_s": float(correction["v_s"]),
-                                                 "v_c": float(correction["v_c"]), "coef": coef + [0.0] * (12 - len(coef))})
-        call = lambda *args: m.lib.maglev_replay_predict_corrected(args[0], args[1], corr, *args[2:])  # noqa: E731
-    else:
-        call = m.lib.maglev_replay_predict_measured
-    rc = call(ptr(pv), filt, float(ts), *(ptr(a) for a in arrays),
-              m.ffi.NULL if cur is None else ptr(cur), float(r_current), n,
-              *(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")), msg, 256)
+    # (the corrected entry point with NULL is the measured one: maglev_replay.c)
+    rc = m.lib.maglev_replay_predict_corrected(ptr(pv), filt, _correction(m, correction), float(ts),
+                                               *(ptr(a) for a in arrays), m.ffi.NULL if cur is None else ptr(cur),
+                                               float(r_current), n,
+                                               *(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var", "d",
+                                                                       "d_sd")), msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return out
@@ -203,7 +215,8 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
 def predict_horizons(params: StartValues | Mapping[str, float] | None, y: np.ndarray, u: np.ndarray, *, ts: float,
                      q_force: float, f_force: float, r_sensor: float, horizons: Sequence[int], stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,
-                     correction: Mapping | None = None) -> dict[str, np.ndarray]:
+                     correction: Mapping | None = None, f_sensor: float = 0.0,
+                     r_coloured: float = 0.0) -> dict[str, np.ndarray]:
     """:func:`predict_measured` at several ``horizons`` [samples] in one pass
     (``maglev_replay_predict_horizons``): the filter runs once and each prediction's trajectory to
     the longest horizon is read at every one, so the result equals one call per horizon at the
@@ -211,24 +224,14 @@ def predict_horizons(params: StartValues | Mapping[str, float] | None, y: np.nda
     ``innov_var``, ``d``, ``d_sd`` as in :func:`predict_measured`."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
-    arrays = [np.ascontiguousarray(a, dtype=float) for a in (y, u)]
-    n = len(arrays[0])
-    cur = None if current is None else np.ascontiguousarray(current, dtype=float)
-    if len(arrays[1]) != n or (cur is not None and len(cur) != n):
-        raise ValueError("y, u and the current must have the same length")
+    arrays, n, cur = _measured_inputs(y, u, current)
     hs = [int(h) for h in horizons]
     out = {k: np.empty((len(hs), n)) for k in ("y_pred", "i_pred")}
     out.update({k: np.empty(n) for k in ("innov", "innov_var", "d", "d_sd")})
-    filt = _filter(m, q_force, f_force, r_sensor, max(hs, default=0), stride, False)
+    filt = _filter(m, q_force, f_force, r_sensor, max(hs, default=0), stride, False, f_sensor, r_coloured)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    corr = m.ffi.NULL
-    if correction is not None and int(correction["n_x"]) > 0:
-        coef = [float(v) for v in correction["coef"]]
-        corr = m.ffi.new("MaglevCorrection *", {"n_x": int(correction["n_x"]), "x_c": float(correction["x_c"]),
-                                                 "x_s": float(correction["x_s"]), "v_s": float(correction["v_s"]),
-                                                 "v_c": float(correction["v_c"]), "coef": coef + [0.0] * (12 - len(coef))})
-    rc = m.lib.maglev_replay_predict_horizons(ptr(pv), filt, corr, float(ts), *(ptr(a) for a in arrays),
+    rc = m.lib.maglev_replay_predict_horizons(ptr(pv), filt, _correction(m, correction), float(ts), *(ptr(a) for a in arrays),
                                               m.ffi.NULL if cur is None else ptr(cur), float(r_current), n, len(hs),
                                               m.ffi.new("int[]", hs), *(ptr(out[k]) for k in
                                                                         ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")),
