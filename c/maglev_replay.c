@@ -707,3 +707,16 @@ int maglev_replay_predict_horizons(const double *params, const MaglevFilter *f, 
     return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, n_h, horizons, y_pred,
                    NULL, i_pred, innov, innov_var, d_est, d_sd, msg, len);
 }
+
+int maglev_replay_predict_closed(const double *params, const MaglevController *c, const MaglevFilter *f,
+                                 const double *w, const double *y, const double *u, const double *i_meas,
+                                 double r_current, size_t n, double u_hold, int n_h, const int *horizons,
+                                 double *y_pred, double *u_pred, double *i_pred, double *innov, double *innov_var,
+                                 double *d_est, double *d_sd, char *msg, size_t len) {
+    if (!c) {
+        snprintf(msg, len, "no controller given (maglev_replay_predict_horizons predicts without one)");
+        return -1;
+    }
+    return predict(params, c, NULL, c->pid.ts, f, w, y, u, i_meas, r_current, n, u_hold, n_h, horizons, y_pred, u_pred,
+                   i_pred, innov, innov_var, d_est, d_sd, msg, len);
+}

@@ -152,7 +152,7 @@ int maglev_replay_predict_corrected(const double *params, const MaglevFilter *fi
                                     double r_current, size_t n, double *y_pred, double *i_pred, double *innov,
                                     double *innov_var, double *d_est, double *d_sd, char *msg, size_t msglen);
 
-/* The most horizons maglev_replay_predict_horizons takes in one call. */
+/* The most horizons maglev_replay_predict_horizons and maglev_replay_predict_closed take in one call. */
 #define MAGLEV_MAX_HORIZONS 8
 
 /* maglev_replay_predict_corrected at n_h horizons (samples, each >= 1; filter->horizon is not
@@ -164,6 +164,17 @@ int maglev_replay_predict_horizons(const double *params, const MaglevFilter *fil
                                    double r_current, size_t n, int n_h, const int *horizons, double *y_pred,
                                    double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
                                    char *msg, size_t msglen);
+
+/* The closed loop predicted at n_h horizons (as maglev_replay_predict_horizons) with a controller:
+ * the filter follows the measured y (and the measured current i_meas, may be NULL) driven by the
+ * measured u; from every stride-th sample the plant and the controller run on their own predicted
+ * readings and current, driven by the reference w alone (no measured signal after the sample the
+ * prediction starts from). u_pred: the controller's predicted outputs. ts: the controller's. */
+int maglev_replay_predict_closed(const double *params, const MaglevController *c, const MaglevFilter *filter,
+                                 const double *w, const double *y, const double *u, const double *i_meas,
+                                 double r_current, size_t n, double u_hold, int n_h, const int *horizons,
+                                 double *y_pred, double *u_pred, double *i_pred, double *innov, double *innov_var,
+                                 double *d_est, double *d_sd, char *msg, size_t msglen);
 
 /* The plant driven by a given input sequence; y[k] is read at t_k before u_in[k] is applied;
  * u_in[0] is also the input before t = 0. */

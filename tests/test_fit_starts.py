@@ -79,11 +79,12 @@ def test_a_model_on_a_bound_is_retried_with_the_candidates_present(limited):
     """A model whose D/A offset absorbed a brief current limit and ran onto its bound (u_0 = 1 V,
     as the issue's final model): refitted from the calibration's start with each candidate present,
     the limit joins (i_max within 5 %) and the offset leaves the bound."""
-    from maglev_cosim.diagnosis.pipeline import BLOCK, Search, calibrate, retry_on_bounds
+    from maglev_cosim.diagnosis.acceptance import fit_blocks
+    from maglev_cosim.diagnosis.pipeline import Search, calibrate, retry_on_bounds
     from maglev_cosim.diagnosis.verdict import on_bounds
 
     rec = limited
-    fit_mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    fit_mask = fit_blocks(rec.t)
     base = baseline_params()
     cal = calibrate(rec, base, fit_mask, lambda s: None)
     stuck = {**base, **cal.values, "u_0": 1.0}

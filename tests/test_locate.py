@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from maglev_cosim.diagnosis.locate import LOCATIONS, generic_corrections, locate
-from maglev_cosim.diagnosis.pipeline import BLOCK
+from maglev_cosim.diagnosis.acceptance import fit_blocks
 from maglev_cosim.diagnosis.residual import noise_floor
 from maglev_cosim.records.record import read_record
 from maglev_cosim.diagnosis.replay import baseline_params, replay, replay_injected
@@ -18,7 +18,7 @@ from maglev_cosim.records.synth import synth_record
 def _located(tmp_path, effects):
     rec = read_record(synth_record(tmp_path / "r.csv", effects=effects, seed=21, duration=8.0), plausibility="warn")
     nf = noise_floor(rec)
-    mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    mask = fit_blocks(rec.t)
     cs = generic_corrections(rec, baseline_params(), mask, scale_y=nf["sigma_y"],
                              scale_u=nf["rms_u_from_sensor_noise"])
     assert {c.location for c in cs} == set(LOCATIONS) and len(cs) == 8
@@ -91,7 +91,7 @@ def _ivp_located(tmp_path, effects, seed=7):
     rec = read_record(synth_ivp(tmp_path / "f.csv", effects=effects, seed=seed, duration=6.0,
                                 settings={"pid_offset": 0.0}), plausibility="warn")
     nf = noise_floor(rec)
-    mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    mask = fit_blocks(rec.t)
     base = baseline_params()
     values = {**base, **calibrate(rec, base, mask, lambda s: None).values}
     cs = generic_corrections(rec, values, mask, scale_y=nf["sigma_y"], scale_u=nf["rms_u_from_sensor_noise"])

@@ -321,7 +321,7 @@ def _print_result(res: DiagnosisResult, recs: list[Recording] = ()) -> None:
         for p in (CATALOGUE[e].params if e in CATALOGUE else ()):
             if p in res.parameters and res.parameters[p].value is not None:
                 print(f"  {res.parameters[p]}")
-    for s in res.segments:
+    for s in res.segments if res.kind == "rig" else ():     # a CE152 record's are its comparison's
         cur = s.current_from_actuator
         skill = "  ".join(f"{h}: skill {k:+.2f}" for h, k in s.skill.items() if k is not None)
         print(f"{'validation ' if s.role == 'validation' else ''}{s.label}: current from actuator "

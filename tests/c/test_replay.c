@@ -281,6 +281,32 @@ int main(void) {
                                              NULL, msg, sizeof msg) == -1 && strstr(msg, "horizons needed"), "%s", msg);
     }
 
+    /* the closed loop at several horizons in one pass: each row equals maglev_replay_predict with
+     * that horizon alone; no controller is refused */
+    {
+        static double yh[3 * N], uh[3 * N], y1[N], u1[N];
+        const int hz[3] = {5, 20, 50};
+        CHECK(maglev_replay_predict_closed(p, &ctl, &f, w, y, u, NULL, 0.0, N, pt.u, 3, hz, yh, uh, NULL, NULL, NULL,
+                                           NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
+        for (int r = 0; r < 3; r++) {
+            MaglevFilter g = f;
+            g.horizon = hz[r];
+            CHECK(maglev_replay_predict(p, &ctl, &g, w, y, u, N, pt.u, y1, u1, NULL, NULL, msg, sizeof msg) == 0, "%s",
+                  msg);
+            int same = 1, made = 0;
+            for (int k = 0; k < N; k++) {
+                double a = yh[r * N + k], b = y1[k], c = uh[r * N + k], d2 = u1[k];
+                same &= (isnan(a) && isnan(b)) || a == b;
+                same &= (isnan(c) && isnan(d2)) || c == d2;
+                made += !isnan(a);
+            }
+            CHECK(same && made > 0, "closed loop, horizon %d: one pass differs from the single call (%d made)", hz[r],
+                  made);
+        }
+        CHECK(maglev_replay_predict_closed(p, NULL, &f, w, y, u, NULL, 0.0, N, pt.u, 3, hz, yh, uh, NULL, NULL, NULL,
+                                           NULL, NULL, msg, sizeof msg) == -1 && strstr(msg, "no controller"), "%s", msg);
+    }
+
     /* refusals: one message, nothing computed */
     MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1, 0, 0, 0}, {2.5e-4, NAN, 2.5e-4, 20, 1, 0, 0, 0},
                           {2.5e-4, 8.0, -1.0, 20, 1, 0, 0, 0}, {2.5e-4, 8.0, 2.5e-4, -1, 1, 0, 0, 0},

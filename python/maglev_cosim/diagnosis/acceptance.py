@@ -5,11 +5,18 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from scipy.stats import chi2
 
 BLOCK = 0.8                  # [s] alternating fit / held-out blocks
 ALPHA = 1e-3                 # false-acceptance probability of the likelihood-ratio test
 MIN_GAIN = 0.03              # smallest held-out cost reduction worth an effect (3 %)
+
+
+def fit_blocks(t: np.ndarray) -> np.ndarray:
+    """Which samples (times ``t`` [s]) lie in the fit blocks: the even ``BLOCK``-long blocks from
+    t = 0; the odd ones are held out."""
+    return (np.floor(np.asarray(t) / BLOCK).astype(int) % 2) == 0
 
 
 def accept(cost_before: float, cost_after: float, n_eff: float, n_params: int) -> tuple[bool, dict]:

@@ -45,18 +45,20 @@ def _lags(ts: float, horizon_s: float) -> tuple[int, int]:
     return max(1, int(round(PAST_S / ts))), max(1, int(round(horizon_s / ts)))
 
 
-def features(s: Series, horizon_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """The regressors of every sample ``k`` that has its full window (rows) and the indices ``k``."""
+def features(s: Series, horizon_s: float, future: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The regressors of every sample ``k`` that has its full window (rows) and the indices ``k``;
+    ``future`` False: the actuator signal only up to ``k`` (none after the prediction's start)."""
     p, h = _lags(s.ts, horizon_s)
     y = np.asarray(s.y, float)
     a = np.asarray(s.a, float)
     n = len(y)
     k = np.arange(p, n - h)
+    last = h if future else 0
     if len(k) == 0:
-        return np.empty((0, p + 2 * (p + h + 1))), k
+        return np.empty((0, p + 2 * (p + last + 1))), k
     dy = np.diff(y)  # dy[j] = y[j+1] - y[j]
     cols = [dy[k - j - 1] for j in range(p)]                 # y[k-j] - y[k-j-1]
-    win = [a[k + j] for j in range(-p, h + 1)]
+    win = [a[k + j] for j in range(-p, last + 1)]
     cols += win + [w * w for w in win]
     return np.column_stack(cols), k
 
@@ -73,10 +75,11 @@ class DirectPredictor:
     alpha: float
     samples: int
     cv_rms: dict[float, float] = field(default_factory=dict)
+    future: bool = True              #: whether it reads the actuator signal up to the predicted instant
 
     def predict(self, s: Series) -> np.ndarray:
         """``ŷ[k]`` made at ``k − h`` (NaN where no prediction ends), in ``s.y``'s unit."""
-        X, k = features(s, self.horizon_s)
+        X, k = features(s, self.horizon_s, self.future)
         _, h = _lags(s.ts, self.horizon_s)
         out = np.full(len(s.y), np.nan)
         if len(k):
@@ -124,13 +127,17 @@ class _Moments:
                      - 2 * (coef @ self.xt) - 2 * b * self.st + self.tt)
 
 
-def fit(records: Sequence[Series], horizon_s: float, *, alphas: Sequence[float] = ALPHAS) -> DirectPredictor:
-    """The ridge predictor of the position ``horizon_s`` ahead, fitted on ``records``.
+def fit(records: Sequence[Series], horizon_s: float, *, alphas: Sequence[float] = ALPHAS,
+        future: bool = True) -> DirectPredictor:
+    """The ridge predictor of the position ``horizon_s`` ahead, fitted on ``records``. ``future``
+    False: it reads the actuator signal only up to the prediction's start. In a closed loop the
+    signal after it holds the controller's reaction to what moved the ball meanwhile; the two
+    predictors' difference is how much of the skill comes from reading that reaction.
 
     Raises ``ValueError`` when the records have no sample with a full window."""
     blocks = []
     for s in records:
-        X, k = features(s, horizon_s)
+        X, k = features(s, horizon_s, future)
         _, h = _lags(s.ts, horizon_s)
         y = np.asarray(s.y, float)
         t = y[k + h] - y[k]
@@ -157,7 +164,7 @@ def fit(records: Sequence[Series], horizon_s: float, *, alphas: Sequence[float] 
         cv[float(alpha)] = float(np.sqrt(max(err, 0.0) / total.n))
     best = min(cv, key=cv.get)
     coef, intercept = total_z.solve(best)
-    return DirectPredictor(horizon_s, mean, scale, coef, intercept, best, total.n, cv)
+    return DirectPredictor(horizon_s, mean, scale, coef, intercept, best, total.n, cv, future)
 
 
 def stays_put(y: np.ndarray, h: int) -> np.ndarray:

@@ -314,10 +314,11 @@ def _verdict_sentence(d: Diagnosis) -> str:
 
 
 def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu_out: Path | None = None,
-                 fmu_refused: bool = False) -> list[Path]:
+                 fmu_refused: bool = False, comparison=None) -> list[Path]:
     """Writes ``report.md``, the plots and ``report.html`` into ``out`` (``diagnosis.json`` and the
     calibrated FMU, :func:`write_calibrated_fmu`, are the engine's: ``fmu_out`` is where it goes,
-    ``fmu_refused`` that none is written because the calibration failed); the files written."""
+    ``fmu_refused`` that none is written because the calibration failed; ``comparison``: the model /
+    black box / naive table, :class:`~.compare.RecordComparison`); the files written."""
     out.mkdir(parents=True, exist_ok=True)
     pngs = _plots(rec, d, out)
 
@@ -385,6 +386,17 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu_out: Path | None =
             lines.append(f"| {c.location} | {c.form} | {c.signal} | {100 * c.held_out_gain:.1f} % | "
                          f"{100 * c.fit_gain:.1f} % |")
         lines.append("")
+    if comparison is not None:
+        lines += ["### Prediction: the model against a black box", "",
+                  "Skill against \"stays put\" of the reading predicted 5, 20 and 50 ms ahead (> 0: better; 1: "
+                  "exact), on the blocks no fit saw and on the fit blocks. The model in closed loop runs the final "
+                  "model with the record's controller from each sample on, driven by the reference alone; driven "
+                  "by u, it takes the recorded actuator signal up to the predicted instant, as the black box (a "
+                  "ridge regression per horizon on the last 30 ms of readings and on u and u² up to the "
+                  "predicted instant, fitted on the fit blocks) does. That signal holds the controller's "
+                  "reaction to what moved the ball meanwhile, which a direct regression reads and the physics "
+                  "driven by it cannot (docs/diagnosis.md, \"Model against black box\").", "",
+                  *comparison.table(), ""]
     if d.selected:
         lines += ["### Estimated effect parameters (±1 standard error)", "", "| parameter | value | ± | unit |",
                   "|---|---|---|---|"]

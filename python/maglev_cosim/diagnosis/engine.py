@@ -30,6 +30,7 @@ from ..records.record import Record
 from ..rigs import Rig, load_rig
 from . import pipeline, real_rig
 from .ce152_report import write_calibrated_fmu, write_report
+from .compare import compare
 from .result import CalibratedFmu, DiagnosisResult, RecordRef, from_ce152, from_rig
 
 Say = Callable[[str], None]
@@ -124,16 +125,20 @@ def _ce152(r: Recording, *, effects, out, progress, workers, fmu, start, json_na
     fmu_in = ensure_fmu(fmu) if out is not None else None       # a missing FMU fails before the diagnosis
     say(f"diagnosing {rec.path}: {rec.n} samples, {rec.duration:.2f} s")
     d = pipeline.run(rec, effects=names, workers=workers, progress=progress, start=start)
+    cmp = None
+    if d.verdict is not None:
+        say("comparing the final model's predictions with the black box and the naive predictors (5, 20, 50 ms)")
+        cmp = compare(rec, d.parameters, d.verdict.noise)
     if out is None:
-        return from_ce152(d, None, [])
+        return from_ce152(d, None, [], cmp)
     out = Path(out)
     # no calibrated FMU of a calibration that failed: its parameters are not a model of the rig
     failed = d.verdict is not None and d.verdict.verdict == "calibration failed"
     fmu_out = None if failed else out / "maglev_calibrated.fmu"
-    written = write_report(rec, d, out, fmu_out=fmu_out, fmu_refused=failed)
+    written = write_report(rec, d, out, fmu_out=fmu_out, fmu_refused=failed, comparison=cmp)
     written = [out / json_name, *written, *([fmu_out] if fmu_out else [])]
     cal = CalibratedFmu(str(fmu_out), [RecordRef(Path(rec.path).name, _sha256(Path(rec.path)))]) if fmu_out else None
-    result = from_ce152(d, cal, written)
+    result = from_ce152(d, cal, written, cmp)
     (out / json_name).write_text(json.dumps(result.to_json(), indent=2, allow_nan=False) + "\n")
     if fmu_out is not None:
         write_calibrated_fmu(rec, d, fmu_in, fmu_out, out)      # its documentation holds diagnosis.json

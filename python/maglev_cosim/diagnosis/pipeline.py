@@ -27,7 +27,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from ..records.record import Record
-from .acceptance import BLOCK, CRITERION, accept
+from .acceptance import CRITERION, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .metrics import nrmse_fit
@@ -560,7 +560,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
     check_controller(rec)      # a record whose u its controller did not make (swapped columns): at once
     base = baseline_params()
     base.update({k: float(v) for k, v in (static_start(rec, base, say) if start is None else start).items()})
-    fit_mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    fit_mask = fit_blocks(rec.t)
 
     cal = calibrate(rec, base, fit_mask, say)
     found = search(cal.prob, dict(cal.values), effects, ~fit_mask, workers, say)

@@ -46,7 +46,7 @@ from ..records.record import RecordError
 from ..rigs import Rig
 from . import blackbox as bb
 from .metrics import nrmse_fit
-from .result import finite
+from .result import HorizonSkill, finite
 
 #: Prediction horizons of the position figures [s].
 HORIZONS_S = (0.005, 0.020, 0.050)
@@ -228,6 +228,10 @@ def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float]
             okb = ok & np.isfinite(yb)
             entry["black_box"] = nrmse_fit(r.position[okb], yb[okb])
             entry["skill"]["black_box"] = bb.skill(r.position, yb, bb.stays_put(r.position, h), okb)
+            if ("past", hs) in black_box:
+                yp = black_box[("past", hs)].predict(series)
+                entry["skill"]["black_box_past"] = bb.skill(r.position, yp, bb.stays_put(r.position, h),
+                                                            okb & np.isfinite(yp))
             entry["skill"]["model_on_position"] = bb.skill(r.position, _to_position(rig, o["y_pred"]),
                                                            bb.stays_put(r.position, h), okb)
         out["position"][f"{hs * 1e3:g} ms"] = entry
@@ -1068,7 +1072,7 @@ def comparison(calibration: Sequence[dict], validation: Sequence[dict]) -> dict:
         out[role] = {"segments": len(figs)}
         for h in figs[0]["position"]:
             row = {}
-            for who in ("model", "black_box", "constant_velocity"):
+            for who in HorizonSkill.WHO:
                 v = [f["position"][h]["skill"].get(who, np.nan) for f in figs]
                 v = [x for x in v if np.isfinite(x)]
                 row[who] = float(np.median(v)) if v else float("nan")
@@ -1080,12 +1084,13 @@ def comparison(calibration: Sequence[dict], validation: Sequence[dict]) -> dict:
 def comparison_table(comp: dict) -> list[str]:
     """The Markdown table of :func:`comparison`: one row per role and horizon, the median skill
     (worst in brackets) of the model, the black box and "constant velocity"."""
-    lines = ["| records | horizon | model | black box | constant velocity |", "|---|---|---|---|---|"]
+    lines = ["| records | horizon | model | black box | black box, actuator up to the start | constant velocity |",
+             "|---|---|---|---|---|---|"]
     for role, c in comp.items():
         for h, v in c.items():
             if h != "segments":
                 lines.append(f"| {role} ({c['segments']}) | {h} | " + " | ".join(
-                    f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in ("model", "black_box", "constant_velocity")) + " |")
+                    f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in HorizonSkill.WHO) + " |")
     return lines
 
 
@@ -1109,6 +1114,12 @@ def judge_against_black_box(verdict: str, comp: dict) -> tuple[str, list[str]]:
                "instant what the controller knew of the gap (a controller with a state estimator, or a sensor "
                "quieter inside the loop than in the record): a direct linear predictor never runs the unstable "
                "plant, the model does"]
+    past = [(h, v["black_box_past"]) for h, v in lost if np.isfinite(v.get("black_box_past", np.nan))]
+    if past:
+        reasons.append("the same black box reading the actuator signal only up to the prediction's start reaches "
+                       + ", ".join(f"{p:+.2f} at {h}" for h, p in past) + ": the difference is what the black box "
+                       "reads of the controller's reaction after the start, which the true model driven by the "
+                       "actuator signal cannot use either (docs/diagnosis.md, \"Model against black box\")")
     return ("explained in part" if verdict in ("explained", "no effect") else verdict), reasons
 
 
@@ -1281,10 +1292,12 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
         series = [bb.Series(r.position, r.current if r.current is not None else r.u, r.ts) for r in fit_on]
         try:
             black_box = {hs: bb.fit(series, hs) for hs in HORIZONS_S}
+            black_box.update({("past", hs): bb.fit(series, hs, future=False) for hs in HORIZONS_S})
         except ValueError as e:
             result["black_box_error"] = str(e)
         result["black_box"] = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
-                                                    "features": len(p.coef)} for hs, p in black_box.items()}
+                                                    "features": len(p.coef)}
+                                  for hs, p in black_box.items() if not isinstance(hs, tuple)}
     figs_after = []
     for m, rs in train:
         entry = {"file": str(m.path), "label": m.label, "warnings": m.warnings, "segments": [],

@@ -21,7 +21,7 @@ from ..loop.simulate import settled_start_vector
 from ..plant import fast, formulas
 from ..plant.params import as_params, get_params
 from ..records.record import Record
-from .acceptance import BLOCK, accept
+from .acceptance import accept, fit_blocks
 
 
 def baseline_params() -> dict[str, float]:
@@ -234,7 +234,7 @@ def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool =
 
 def _coloured_choice(rec: Record, params: Mapping[str, float], white: NoiseModel, info: dict | None) -> NoiseModel:
     """:func:`estimate_noise`'s choice of a coloured part of the sensor noise beside ``white``."""
-    fit = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    fit = fit_blocks(rec.t)
     held = ~fit
     out_w = predict(rec, params, white, horizon_s=0.0)
     # a screen that saves the fits on white sensor noise: a coloured part the white filter lacks

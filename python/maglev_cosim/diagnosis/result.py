@@ -141,16 +141,19 @@ class LocationEvidence:
 @dataclass
 class HorizonSkill:
     """Median (and worst) skill against "stays put" at one horizon: the model, the black-box
-    baseline and "constant velocity" (> 0: better than standing still)."""
+    baseline, the same black box reading the actuator signal only up to the prediction's start
+    (``black_box_past``), and "constant velocity" (> 0: better than standing still)."""
 
     model: float | None
     model_worst: float | None
     black_box: float | None
     black_box_worst: float | None
+    black_box_past: float | None
+    black_box_past_worst: float | None
     constant_velocity: float | None
     constant_velocity_worst: float | None
 
-    WHO = ("model", "black_box", "constant_velocity")
+    WHO = ("model", "black_box", "black_box_past", "constant_velocity")
 
     def to_json(self) -> Json:
         return {k: getattr(self, k) for w in self.WHO for k in (w, f"{w}_worst")}
@@ -298,10 +301,13 @@ _CE152_TYPED = ("verdict", "fit", "fit_before", "warnings", "selected", "paramet
                 "after", "location_evidence")
 
 
-def from_ce152(d, calibrated_fmu: CalibratedFmu | None, written: list[Path]) -> DiagnosisResult:
+def from_ce152(d, calibrated_fmu: CalibratedFmu | None, written: list[Path], comparison=None) -> DiagnosisResult:
     """The result of the CE152 path (:class:`~.pipeline.Diagnosis`: closed-loop replay with the
-    record's declared controller, the catalogue, the verdict, the location)."""
+    record's declared controller, the catalogue, the verdict, the location), with the model / black
+    box / naive ``comparison`` (:class:`~.compare.RecordComparison`) when there is one."""
     data = d.to_json()
+    if comparison is not None:
+        data["prediction_comparison"] = comparison.to_json()
     v = d.verdict
     return DiagnosisResult(
         kind="ce152", verdict=v.verdict if v else "calibration failed",
@@ -311,6 +317,8 @@ def from_ce152(d, calibrated_fmu: CalibratedFmu | None, written: list[Path]) -> 
         before=Residual.from_json(d.before), after=Residual.from_json(d.after),
         location_evidence=[LocationEvidence.from_json(k, e) for k, e in (v.location_evidence if v else {}).items()],
         calibrated_fmu=calibrated_fmu, written=list(written),
+        comparison=comparison.comparisons() if comparison is not None else [],
+        segments=comparison.segments(Path(d.record).name) if comparison is not None else [],
         extra={k: x for k, x in data.items() if k not in _CE152_TYPED}, detail=d)
 
 

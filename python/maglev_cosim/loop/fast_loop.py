@@ -4,7 +4,7 @@ controller (:data:`maglev_cosim.loop.controllers.Controller`), converted here to
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from types import SimpleNamespace
 
 import numpy as np
@@ -88,6 +88,39 @@ def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w
     rc = m.lib.maglev_replay_predict(ptr(pv), _controller(m, pid), filt,
                                      *(ptr(a) for a in arrays), n, float(u_hold),
                                      *(ptr(out[k]) for k in ("y_pred", "u_pred", "innov", "innov_var")), msg, 256)
+    if rc != 0:
+        raise ValueError(m.ffi.string(msg).decode())
+    return out
+
+
+def predict_closed(params: PlantParams | Mapping[str, float] | None, controller: Controller, w: np.ndarray,
+                   y: np.ndarray, u: np.ndarray, u_hold: float, *, q_force: float, f_force: float, r_sensor: float,
+                   horizons: Sequence[int], stride: int = 1, current: np.ndarray | None = None,
+                   r_current: float = 0.0, f_sensor: float = 0.0, r_coloured: float = 0.0) -> dict[str, np.ndarray]:
+    """The closed loop predicted at several ``horizons`` [samples] in one C call
+    (``maglev_replay_predict_closed``): the filter follows the measured reading ``y`` [MU] (and the
+    measured coil ``current`` [A], white noise of RMS ``r_current``, when given), driven by the
+    measured ``u``; from every ``stride``-th sample the plant and the ``controller`` run on their own
+    predicted readings and current, driven by the reference ``w`` [MU] alone. Returns ``y_pred``,
+    ``u_pred``, ``i_pred`` (one row per horizon; NaN where no prediction ends), ``innov``,
+    ``innov_var``, ``d``, ``d_sd`` as :func:`maglev_cosim.plant.fast.predict_horizons`."""
+    m = fast._lib()
+    pv = fast._param_vector(fast._as_mapping(params))
+    (y, u), n, cur = fast._measured_inputs(y, u, current)
+    w = np.ascontiguousarray(w, dtype=float)
+    if len(w) != n:
+        raise ValueError("w, y and u must have the same length")
+    hs = [int(h) for h in horizons]
+    out = {k: np.empty((len(hs), n)) for k in ("y_pred", "u_pred", "i_pred")}
+    out.update({k: np.empty(n) for k in ("innov", "innov_var", "d", "d_sd")})
+    filt = fast._filter(m, q_force, f_force, r_sensor, max(hs, default=0), stride, False, f_sensor, r_coloured)
+    msg = m.ffi.new("char[256]")
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    rc = m.lib.maglev_replay_predict_closed(ptr(pv), _controller(m, controller), filt, ptr(w), ptr(y), ptr(u),
+                                            m.ffi.NULL if cur is None else ptr(cur), float(r_current), n,
+                                            float(u_hold), len(hs), m.ffi.new("int[]", hs),
+                                            *(ptr(out[k]) for k in ("y_pred", "u_pred", "i_pred", "innov", "innov_var",
+                                                                    "d", "d_sd")), msg, 256)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return out
