@@ -337,7 +337,8 @@ def _print_result(res: DiagnosisResult, recs: list[Recording] = ()) -> None:
             print(f"{c.label}: declared controller {c.controller}: actuator fit {c.actuator_fit:.1f} %{loops}; "
                   f"closed loop 20 ms ahead: {cl or 'no segment'}")
     if res.comparison:
-        print("median skill against 'stays put' (worst): model / black box / constant velocity")
+        print("median skill against 'stays put' (worst): model / black box / black box with the actuator signal "
+              "only up to the start / constant velocity")
         fmt = lambda v: "nan" if v is None else f"{v:+.2f}"  # noqa: E731
         for c in res.comparison:
             for h, k in c.horizons.items():
@@ -620,11 +621,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fmu", default=None, help=fmu_help)
     s.set_defaults(func=cmd_fmu)
 
-    s = sub.add_parser("calibrate", help="one parameter set for a rig on several real records: per-record fit, "
+    s = sub.add_parser("calibrate", help="one parameter set on several records of one rig: per-record fit, "
                        "parameter spread, validation on records not used")
-    s.add_argument("records", nargs="+", help="real records (Inteco .mat, levitador text, a text record "
-                   "declaring its columns: docs/bringing-your-rig.md)")
-    s.add_argument("--rig", required=True, help="shipped rig name or rig file (docs/rigs.md)")
+    s.add_argument("records", nargs="+", help="CE152 records (docs/record-format.md), or real records with --rig "
+                   "(Inteco .mat, levitador text, a text record declaring its columns: docs/bringing-your-rig.md)")
+    s.add_argument("--rig", default=None, help="shipped rig name or rig file of real records (docs/rigs.md); "
+                   "none for CE152 records")
     s.add_argument("--out", required=True, help="output folder")
     s.add_argument("--validate", action="append", metavar="FILE", help="a record to judge the calibration on, "
                    "not used to fit it (repeatable)")

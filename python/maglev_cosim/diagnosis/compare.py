@@ -32,7 +32,7 @@ model's own figure wherever the controller is known.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -103,8 +103,25 @@ def _runs(mask: np.ndarray) -> list[slice]:
     return [slice(a, b) for a, b in zip(edges[::2], edges[1::2])]
 
 
+Boxes = dict  # horizon [s] -> (black box, black box reading u only up to the start), see fit_boxes
+
+
+def fit_boxes(recs: Sequence[Record], horizons_s: tuple[float, ...] = HORIZONS_S) -> tuple[Boxes, dict[str, str]]:
+    """Both black boxes per horizon, fitted on whole records (leave-one-record-out ridge weights),
+    and why a horizon has none (records too short)."""
+    boxes, notes = {}, {}
+    with threadpool_limits(limits=1):
+        for hs_s in horizons_s:
+            train = [bb.Series(r.y, r.u, r.ts) for r in recs]
+            try:
+                boxes[hs_s] = (bb.fit(train, hs_s), bb.fit(train, hs_s, future=False))
+            except ValueError as e:
+                notes[f"{hs_s * 1e3:g} ms"] = str(e)
+    return boxes, notes
+
+
 def compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
-            horizons_s: tuple[float, ...] = HORIZONS_S) -> RecordComparison:
+            horizons_s: tuple[float, ...] = HORIZONS_S, *, boxes: Boxes | None = None) -> RecordComparison:
     """The comparison of the module docstring for one CE152 record.
 
     Parameters
@@ -117,15 +134,18 @@ def compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
         The disturbances the filter assumes (the diagnosis's final estimate).
     horizons_s : tuple of float
         Prediction horizons [s].
+    boxes : dict, optional
+        Black boxes fitted on other records (:func:`fit_boxes`): the whole record is judged (one
+        role, ``record``). Default: fitted on the record's fit blocks, judged on both kinds of block.
     """
     # one BLAS thread: the black box's cross-validation solves hundreds of small systems, which
     # threads only slow down (and on a busy machine, by tens of times)
     with threadpool_limits(limits=1):
-        return _compare(rec, params, noise, horizons_s)
+        return _compare(rec, params, noise, horizons_s, boxes)
 
 
 def _compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
-             horizons_s: tuple[float, ...]) -> RecordComparison:
+             horizons_s: tuple[float, ...], boxes: Boxes | None) -> RecordComparison:
     start, u_hold = _settled_at_first_reading(rec, params)
     hs = [max(1, int(round(h / rec.ts))) for h in horizons_s]
     kw = dict(q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizons=hs, stride=STRIDE,
@@ -134,29 +154,33 @@ def _compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
         job = pool.submit(fast_loop.predict_closed, start, record_controller(rec), rec.w, rec.y, rec.u, u_hold, **kw)
         measured = fast.predict_horizons(start, rec.y, rec.u, ts=rec.ts, **kw)
         closed = job.result()
-    fit = fit_blocks(rec.t)
+    fit = fit_blocks(rec.t) if boxes is None else np.ones(rec.n, bool)
+    roles = (("fit blocks", fit), ("held-out blocks", ~fit)) if boxes is None else (("record", fit),)
     k = np.arange(rec.n)
-    skills: dict[str, dict[str, dict[str, float]]] = {"fit blocks": {}, "held-out blocks": {}}
+    skills: dict[str, dict[str, dict[str, float]]] = {role: {} for role, _ in roles}
     samples: dict[str, int] = {}
     notes: dict[str, str] = {}
     for q, (h, hs_s) in enumerate(zip(hs, horizons_s)):
-        train = [bb.Series(rec.y[s], rec.u[s], rec.ts) for s in _runs(fit)]
         # the black boxes predict within each block from that block's own past only, as they were
         # fitted; a record too short to fit one has none (NaN, and the reason)
         yb, yp = np.full(rec.n, np.nan), np.full(rec.n, np.nan)
-        try:
-            box, past = bb.fit(train, h * rec.ts), bb.fit(train, h * rec.ts, future=False)
-        except ValueError as e:
-            notes[f"{hs_s * 1e3:g} ms"] = str(e)
+        if boxes is None:
+            try:
+                train = [bb.Series(rec.y[s], rec.u[s], rec.ts) for s in _runs(fit)]
+                pair = bb.fit(train, h * rec.ts), bb.fit(train, h * rec.ts, future=False)
+            except ValueError as e:
+                pair, notes[f"{hs_s * 1e3:g} ms"] = None, str(e)
         else:
+            pair = boxes.get(hs_s)
+        if pair is not None:
             for s in _runs(fit) + _runs(~fit):
-                yb[s] = box.predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
-                yp[s] = past.predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
+                yb[s] = pair[0].predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
+                yp[s] = pair[1].predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
         stay = bb.stays_put(rec.y, h)
         cv = bb.constant_velocity(rec.y, h, rec.ts)
         origin_same_block = np.zeros(rec.n, bool)       # (a horizon is far shorter than a block)
         origin_same_block[h:] = fit[h:] == fit[:-h]
-        for role, blocks in (("fit blocks", fit), ("held-out blocks", ~fit)):
+        for role, blocks in roles:
             ok = (blocks & origin_same_block & (k >= h + int(round(SETTLE_S / rec.ts)))
                   & np.isfinite(closed["y_pred"][q]) & np.isfinite(measured["y_pred"][q]) & np.isfinite(cv)
                   & (np.isfinite(yb) | np.isnan(yb).all()))

@@ -28,7 +28,7 @@ from ..records.load import Recording, load
 from ..records.measured import Measured
 from ..records.record import Record
 from ..rigs import Rig, load_rig
-from . import pipeline, real_rig
+from . import joint, pipeline, real_rig
 from .ce152_report import write_calibrated_fmu, write_report
 from .compare import compare
 from .result import CalibratedFmu, DiagnosisResult, RecordRef, from_ce152, from_rig
@@ -67,12 +67,13 @@ def diagnose(record_or_records: Records | Sequence[Records], *, rig: Rig | str |
     Parameters
     ----------
     record_or_records : Recording, Record, Measured, path, or a sequence of them
-        The record(s) (:func:`maglev_cosim.records.load.load` reads a path). A CE152 record is
-        diagnosed one at a time; a real rig's records are calibrated together.
+        The record(s) (:func:`maglev_cosim.records.load.load` reads a path). One CE152 record is
+        diagnosed on its own; several (or one with ``validate``) are calibrated together
+        (:mod:`.joint`), as a real rig's records always are.
     rig : Rig or str, optional
         The rig of real records (a shipped name or a rig file); default: the records' own.
     validate : sequence
-        Real records the calibration is judged on and not fitted to.
+        Records the calibration is judged on and not fitted to.
     effects : sequence of str, or bool, optional
         CE152: the catalogue entries to try (default :data:`~.effects.DEFAULT_EFFECTS`). A real rig
         tries the effects its drive can take (:data:`~.real_rig.RIG_EFFECTS`), unless ``effects`` is
@@ -109,8 +110,8 @@ def diagnose(record_or_records: Records | Sequence[Records], *, rig: Rig | str |
         raise ValueError("CE152 records and real rigs' records cannot be diagnosed together")
     if recs[0].kind == "ce152":
         if len(recs) > 1 or held:
-            raise ValueError("a CE152 record is diagnosed on its own (its own controller, its own calibration): "
-                             "give one record and no validation records")
+            return _ce152_joint(recs, held, effects=effects, out=out, progress=progress, workers=workers, fmu=fmu,
+                                json_name=json_name)
         return _ce152(recs[0], effects=effects, out=out, progress=progress, workers=workers, fmu=fmu, start=start,
                       json_name=json_name)
     return _rig(recs, held, rig=the_rig or recs[0].rig, effects=effects, out=out, progress=progress,
@@ -143,6 +144,17 @@ def _ce152(r: Recording, *, effects, out, progress, workers, fmu, start, json_na
     if fmu_out is not None:
         write_calibrated_fmu(rec, d, fmu_in, fmu_out, out)      # its documentation holds diagnosis.json
     return result
+
+
+def _ce152_joint(recs: list[Recording], held: list[Recording], *, effects, out, progress, workers, fmu,
+                 json_name: str) -> DiagnosisResult:
+    names = None if effects is None or effects is True else ([] if effects is False else list(effects))
+    fmu_in = ensure_fmu(fmu) if out is not None else None
+    train, judged = [r.ce152 for r in recs], [r.ce152 for r in held]
+    j = joint.run(train, judged, effects=names, workers=workers, progress=progress)
+    if out is None:
+        return joint.result(j, train, judged)
+    return joint.write(j, train, judged, Path(out), fmu_in, json_name)
 
 
 def _rig(recs: list[Recording], held: list[Recording], *, rig: Rig, effects, out, progress, controller,

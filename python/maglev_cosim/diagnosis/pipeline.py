@@ -31,7 +31,7 @@ from .acceptance import CRITERION, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .metrics import nrmse_fit
-from .problem import Parameterization, Problem, cost_on, fit, residuals
+from .problem import Parameterization, Problem, cost_on, fit, residuals, stacked
 from .replay import HORIZON_S, baseline_params, estimate_noise
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
 from .result import Json
@@ -411,24 +411,29 @@ def retry_on_bounds(prob: Problem, found: Search, effects: Sequence[str], hold_m
 
 # ----------------------------------------------------------------------------- 3. refit
 
-def uncertainty(prob: Problem, values: Mapping[str, float], steps: Mapping[str, float]) -> dict[str, float]:
+def uncertainty(prob: Problem | Sequence[Problem], values: Mapping[str, float],
+                steps: Mapping[str, float]) -> dict[str, float]:
     """1-sigma standard errors of the parameters in ``steps`` (each with its typical size) from the
-    Jacobian at the solution, inflated by N/N_eff for the residual's autocorrelation."""
+    Jacobian at the solution, inflated by N/N_eff for the residual's autocorrelation; several
+    problems: records calibrated together (:func:`~.problem.stacked`)."""
     names = list(steps)
     x = np.array([values[n] for n in names])
     sc = np.array([steps[n] for n in names])
-    r0 = residuals(prob, {**values, **dict(zip(names, x))})
+    # each record's y and u errors are autocorrelated differently: the inflation is the largest
+    # N/N_eff among those pieces (one record: its y half and its u half)
+    parts = [residuals(p, {**values, **dict(zip(names, x))}) for p in ([prob] if isinstance(prob, Problem) else prob)]
+    r0 = np.concatenate(parts)
     jac = np.empty((len(r0), len(names)))
     for k in range(len(names)):
         h = 1e-4 * sc[k]
         xp = x.copy()
         xp[k] += h
-        jac[:, k] = (residuals(prob, {**values, **dict(zip(names, xp))}) - r0) / (h / sc[k])
-    half = len(r0) // 2
-    n_eff = min(effective_samples(r0[:half]), effective_samples(r0[half:]))
+        jac[:, k] = (stacked(prob, {**values, **dict(zip(names, xp))}) - r0) / (h / sc[k])
+    pieces = [half for r in parts for half in (r[:len(r) // 2], r[len(r) // 2:])]
+    inflation = max(len(q) / max(effective_samples(q), 1.0) for q in pieces)
     s2 = float(np.sum(r0**2)) / max(len(r0) - len(names), 1)
     try:
-        cov = np.linalg.pinv(jac.T @ jac) * s2 * (len(r0) / 2) / max(n_eff, 1.0)
+        cov = np.linalg.pinv(jac.T @ jac) * s2 * inflation
     except np.linalg.LinAlgError:
         return {n: math.nan for n in names}
     return {n: float(math.sqrt(max(cov[k, k], 0.0)) * sc[k]) for k, n in enumerate(names)}

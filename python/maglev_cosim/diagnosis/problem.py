@@ -112,6 +112,14 @@ def residuals(prob: Problem, values: Mapping[str, float], mask: np.ndarray | Non
     return np.concatenate([(prob.rec.y - sim["y"])[m] / prob.sigma_y, (prob.rec.u - sim["u"])[m] / prob.sigma_u])
 
 
+def stacked(probs: Problem | Sequence[Problem], values: Mapping[str, float]) -> np.ndarray:
+    """:func:`residuals` of one problem, or of several records' problems one after the other (the
+    same ``values`` on each: records calibrated together)."""
+    if isinstance(probs, Problem):
+        return residuals(probs, values)
+    return np.concatenate([residuals(p, values) for p in probs])
+
+
 def cost_on(prob: Problem, values: Mapping[str, float], mask: np.ndarray) -> float:
     """Mean squared weighted residual on the samples of ``mask``."""
     return float(np.mean(residuals(prob, values, mask) ** 2))
@@ -136,10 +144,11 @@ def _values(parts: Sequence[Parameterization], z: np.ndarray) -> dict[str, float
     return out
 
 
-def fit(prob: Problem, parts: Sequence[Parameterization], z0: Sequence[Sequence[float]], *,
+def fit(prob: Problem | Sequence[Problem], parts: Sequence[Parameterization], z0: Sequence[Sequence[float]], *,
         max_nfev: int = 60) -> Fit:
     """Least squares (trust-region reflective) over the coordinates of ``parts``, started at
-    ``z0`` (one coordinate list per part), in scaled coordinates."""
+    ``z0`` (one coordinate list per part), in scaled coordinates; on several problems (records
+    calibrated together) over all their residuals (:func:`stacked`)."""
     coords = [c for part in parts for c in part.coords]
     sc = np.array([c.scale for c in coords])
     lo = np.array([c.lo for c in coords]) / sc
@@ -148,7 +157,7 @@ def fit(prob: Problem, parts: Sequence[Parameterization], z0: Sequence[Sequence[
     zs = np.clip(start / sc, lo + 1e-12, hi - 1e-12)
 
     def fun(z: np.ndarray) -> np.ndarray:
-        return residuals(prob, _values(parts, z * sc))
+        return stacked(prob, _values(parts, z * sc))
 
     r = least_squares(fun, zs, bounds=(lo, hi), diff_step=1e-6, x_scale=1.0, max_nfev=max_nfev,
                       ftol=1e-6, xtol=1e-6, gtol=1e-10)
