@@ -29,10 +29,10 @@ FMU's with ``... --pid build/maglev_pid.so modelDescription_pid.xml`` and
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import re
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -191,36 +191,49 @@ def pid_identity(fmi_version: int = 2) -> Identity:
     )
 
 
-def read_pid_table(library: str | Path, header: str | Path | None = None) -> list[Variable]:
-    """The controller FMU's variable table, out of its compiled binary."""
-    return read_table(library, header=header or c_dir() / "maglev_pid_fmu.h", table="maglev_pid_variables",
-                      enum="MaglevPidVR", prefix="PID_", count="MAGLEV_PID_NVARS")
+def read_pid_table(library: str | Path, header: str | Path | None = None, *, c: str | Path | None = None) -> list[Variable]:
+    """The controller FMU's variable table, out of its compiled binary (``c``: the folder of the C
+    sources, by default the installed ones)."""
+    header = Path(header) if header else Path(c or c_dir()) / "maglev_pid_fmu.h"
+    body = re.search(r"typedef enum \{(.*?)\} MaglevPidVR;", header.read_text(), re.S)
+    if body is None:
+        raise RuntimeError(f"{header}: MaglevPidVR enum not found")
+    names = re.findall(r"\bPID_(\w+)\b", body.group(1))
+    return read_table(library, c=c, table="maglev_pid_variables", names=names)
 
 
-def read_table(library: str | Path, *, header: str | Path | None = None, table: str = "maglev_variables",
-               enum: str = "MaglevVR", prefix: str = "VR_", count: str = "MAGLEV_NVARS") -> list[Variable]:
-    """Reads a ``MaglevVariable`` table (by default the plant's) out of a compiled shared library."""
+def variable_names(c: str | Path | None = None) -> list[str]:
+    """The plant's variable names in value-reference order: the rows of the list ``MAGLEV_VARIABLES``
+    at the top of ``c/maglev_plant.c``, from which ``maglev_plant.h`` makes the ``MaglevVR`` enum."""
+    source = Path(c or c_dir()) / "maglev_plant.c"
+    body = re.search(r"#define MAGLEV_VARIABLES\(X\) \\\n(.*?)\n#endif", source.read_text(), re.S)
+    if body is None:
+        raise RuntimeError(f"{source}: the list MAGLEV_VARIABLES not found")
+    return re.findall(r"^\s*X\((\w+),", body.group(1), re.M)
+
+
+def read_table(library: str | Path, *, c: str | Path | None = None, table: str = "maglev_variables",
+               names: list[str] | None = None) -> list[Variable]:
+    """Reads a ``MaglevVariable`` table (by default the plant's, whose names are :func:`variable_names`)
+    out of a compiled shared library; ``c`` is the folder of the C sources (the installed ones by
+    default). Each row must carry the name the enum gives its value reference."""
     ffi = cffi.FFI()
-    plant_header = (c_dir() / "maglev_plant.h").read_text()
+    plant_header = (Path(c or c_dir()) / "maglev_plant.h").read_text()
     for name in ("MaglevCausality", "MaglevVariable"):     # the C declarations, as the header has them
         decl = re.search(r"typedef (?:enum|struct) \{[^}]*\} " + name + ";", plant_header)
         if decl is None:
             raise RuntimeError(f"c/maglev_plant.h: {name} not found")
         ffi.cdef(decl.group(0))
-    text = plant_header if header is None else Path(header).read_text()
-    body = re.search(r"typedef enum \{(.*?)\} " + enum + ";", text, re.S)
-    if body is None:
-        raise RuntimeError(f"{header or 'c/maglev_plant.h'}: {enum} enum not found")
-    names = re.findall(r"\b(" + prefix + r"\w+|" + count + r")\b", body.group(1))
-    nvars = names.index(count)
+    names = variable_names(c) if names is None else names
+    nvars = len(names)
     ffi.cdef(f"extern const MaglevVariable {table}[{nvars}];")
     lib = ffi.dlopen(str(library))
     rows = []
     for vr in range(nvars):
         v = getattr(lib, table)[vr]
         name = ffi.string(v.name).decode()
-        if prefix + name != names[vr]:
-            raise RuntimeError(f"C table row {vr} is {name!r} but the enum says {names[vr]}")
+        if name != names[vr]:
+            raise RuntimeError(f"C table row {vr} is {name!r} but the enum says {names[vr]!r}")
         rows.append(Variable(vr, name, CAUSALITY[v.causality], float(v.start), ffi.string(v.unit).decode(),
                              ffi.string(v.description).decode(), float(v.min), float(v.max),
                              ffi.string(v.effect).decode()))
@@ -415,23 +428,20 @@ def _date_from_environment() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    fmi_version = 2
-    pid = bool(args) and args[0] == "--pid"
-    args = args[1:] if pid else args
-    if len(args) >= 2 and args[0] == "--fmi":
-        fmi_version = int(args[1])
-        args = args[2:]
-    if len(args) not in (1, 2) or fmi_version not in (2, 3):
-        print("usage: python -m maglev_cosim.plant.model_description [--fmi 2|3] PATH/TO/maglev.so [OUT.xml]\n"
-              "       python -m maglev_cosim.plant.model_description --pid [--fmi 2|3] PATH/TO/maglev_pid.so [OUT.xml]\n"
-              "writes OUT.xml (default: modelDescription.xml in the current folder)", file=sys.stderr)
-        return 2
-    target = Path(args[1] if len(args) == 2 else "modelDescription.xml")
-    ident = pid_identity(fmi_version) if pid else plant_identity(fmi_version)
+    ap = argparse.ArgumentParser(prog="python -m maglev_cosim.plant.model_description",
+                                 description="Writes the model description of a compiled FMU binary's C variable table.")
+    ap.add_argument("--pid", action="store_true", help="the controller FMU's table (maglev_pid.so)")
+    ap.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2)")
+    ap.add_argument("--c", metavar="DIR", help="the folder of the C sources (default: the installed ones); the "
+                                                "build uses the repository's c/")
+    ap.add_argument("library", help="PATH/TO/maglev.so (or maglev_pid.so)")
+    ap.add_argument("out", nargs="?", default="modelDescription.xml", help="default: modelDescription.xml here")
+    args = ap.parse_args(argv)
+    ident = pid_identity(args.fmi) if args.pid else plant_identity(args.fmi)
     ident = Identity(**{**ident.__dict__, "generation_date": _date_from_environment()})
-    table = read_pid_table(args[0]) if pid else read_table(args[0])
-    target.write_text(generate(table, ident, fmi_version))
+    table = read_pid_table(args.library, c=args.c) if args.pid else read_table(args.library, c=args.c)
+    target = Path(args.out)
+    target.write_text(generate(table, ident, args.fmi))
     print(f"wrote {target}")
     return 0
 
