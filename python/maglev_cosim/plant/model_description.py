@@ -1,12 +1,13 @@
 """Model descriptions (FMI 2.0 and 3.0) from the C variable table, so the two cannot drift apart.
 
-The C plant (``c/maglev_plant.c``) owns the variable table ``maglev_variables``: names,
-value references (the ``MaglevVR`` enum order), causality, start values, the ``[min, max]`` range
-``maglev_check_value`` enforces, units and descriptions. :func:`read_table` reads that table out of
-the compiled FMU binary (the declarations come from the installed header) and :func:`generate`
-renders it, with an :class:`Identity` (model name, identifier, GUID / instantiationToken,
-description), as ``modelDescription.xml`` for FMI 2.0 or 3.0. Any FMU whose C table has the
-``MaglevVariable`` layout can use it (``read_table(lib, header=..., table=..., enum=...)``).
+The C plant (``c/maglev_plant.c``) owns the variable table ``maglev_variables``, made from the list
+``MAGLEV_VARIABLES`` at its top: names, value references (the list's order, which is the ``MaglevVR``
+enum's), causality, start values, the ``[min, max]`` range ``maglev_check_value`` enforces, units,
+descriptions and effects. :func:`read_table` reads that table out of the compiled FMU binary (the
+declarations come from the C sources, :func:`variable_names`) and :func:`generate` renders it, with an
+:class:`Identity` (model name, identifier, GUID / instantiationToken, description), as
+``modelDescription.xml`` for FMI 2.0 or 3.0. Any FMU whose C table has the ``MaglevVariable`` layout can
+use it (``read_table(lib, table=..., names=...)``).
 
 What the generator adds to the table, from the unit alone (:data:`UNITS`): the SI base units, a
 ``TypeDefinitions`` entry per unit (its quantity), a ``displayUnit`` where people think in mm, mA
@@ -19,10 +20,11 @@ changes the committed files; ``python -m maglev_cosim.plant.model_description`` 
 ``$SOURCE_DATE_EPOCH`` instead when it is set (reproducible-builds convention), and the drift test
 then fails until the constant is updated to match, on purpose.
 
-``tests/test_model_description.py`` fails when the committed files differ from what the binary
-says. Regenerate, from the repository root after ``scripts/setup.sh``, with
-``python -m maglev_cosim.plant.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``
-and ``... --fmi 3 build/fmu/binaries/linux64/maglev.so modelDescription3.xml``; the controller
+``tests/test_model_description.py`` fails when the committed ``modelDescription.xml`` differs from what
+the binary says. Regenerate, from the repository root after ``scripts/setup.sh``, with
+``python -m maglev_cosim.plant.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``.
+The FMI 3.0 one is not committed: the build writes ``build/modelDescription3.xml`` with
+``... --fmi 3 --c c/ <the plant library> build/modelDescription3.xml`` (CMakeLists.txt); the controller
 FMU's with ``... --pid build/maglev_pid.so modelDescription_pid.xml`` and
 ``... --pid --fmi 3 build/maglev_pid.so modelDescription_pid3.xml``.
 """
