@@ -193,7 +193,8 @@ def pid_identity(fmi_version: int = 2) -> Identity:
     )
 
 
-def read_pid_table(library: str | Path, header: str | Path | None = None, *, c: str | Path | None = None) -> list[Variable]:
+def read_pid_table(library: str | Path, header: str | Path | None = None, *,
+                   c: str | Path | None = None) -> list[Variable]:
     """The controller FMU's variable table, out of its compiled binary (``c``: the folder of the C
     sources, by default the installed ones)."""
     header = Path(header) if header else Path(c or c_dir()) / "maglev_pid_fmu.h"
@@ -342,6 +343,12 @@ def generate(variables: list[Variable], ident: Identity | None = None, fmi_versi
     return (_generate2 if fmi_version == 2 else _generate3)(variables, ident)
 
 
+#: A variable's causality, variability and initial, the same in FMI 2.0 and 3.0.
+_KIND = {"input": 'causality="input" variability="continuous"',
+         "output": 'causality="output" variability="continuous" initial="calculated"',
+         "parameter": 'causality="parameter" variability="fixed" initial="exact"'}
+
+
 def _generate2(variables: list[Variable], ident: Identity) -> str:
     out = _header(ident, 2) + [
         '  <CoSimulation',
@@ -362,12 +369,7 @@ def _generate2(variables: list[Variable], ident: Identity) -> str:
         out.append(f'    <!-- index {v.value_reference + 1} -->')
         head = (f'    <ScalarVariable name="{v.name}" valueReference="{v.value_reference}" '
                 f'description={quoteattr(v.described)}')
-        if v.causality == "input":
-            out.append(f'{head} causality="input" variability="continuous">')
-        elif v.causality == "output":
-            out.append(f'{head} causality="output" variability="continuous" initial="calculated">')
-        else:
-            out.append(f'{head} causality="parameter" variability="fixed" initial="exact">')
+        out.append(f'{head} {_KIND[v.causality]}>')
         out.append(f'      <Real {_real_attrs(v, with_start=v.causality != "output")}/>')
         out.append('    </ScalarVariable>')
     out += ['  </ModelVariables>', '  <ModelStructure>', '    <Outputs>']
@@ -404,13 +406,7 @@ def _generate3(variables: list[Variable], ident: Identity) -> str:
     for v in variables:
         head = (f'    <Float64 name="{v.name}" valueReference="{v.value_reference}" '
                 f'description={quoteattr(v.described)}')
-        if v.causality == "input":
-            kind = 'causality="input" variability="continuous"'
-        elif v.causality == "output":
-            kind = 'causality="output" variability="continuous" initial="calculated"'
-        else:
-            kind = 'causality="parameter" variability="fixed" initial="exact"'
-        out.append(f'{head} {kind} {_real_attrs(v, with_start=v.causality != "output")}/>')
+        out.append(f'{head} {_KIND[v.causality]} {_real_attrs(v, with_start=v.causality != "output")}/>')
     out += ['  </ModelVariables>', '  <ModelStructure>']
     outputs = [v for v in variables if v.causality == "output"]
     for v in outputs:
