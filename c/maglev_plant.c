@@ -57,6 +57,7 @@
     X(b_i, MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "1", "Offset of the inductance's current dependence", "") \
     X(V_min, MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "V", "Lowest coil voltage a voltage drive applies (a PWM stage's floor)", "") \
     X(T_y, MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of a first-order lag through which the sensor sees the position (0 = off)", "sensor_lag") \
+    X(r_y, MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "V/s", "Rate at which the sensor voltage's offset drifts, r_y*t added to Eq. 12 (the sensor electronics warming up; 0 = off)", "sensor_drift") \
     X(solver_step, MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step", "") \
     X(F, MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8", "")
 #endif
@@ -799,6 +800,7 @@ double maglev_sensor_volts(const MaglevPlant *m, double x, double *dV_dx) {
 double maglev_reading(const MaglevPlant *m, double x, double t) {
     double volts = maglev_sensor_volts(m, x, NULL);
     if (P(m, A_d) != 0) volts += P(m, A_d) * sin(2 * PI * P(m, f_d) * t + P(m, phi_d));
+    volts += P(m, r_y) * t; /* effect sensor_drift: the offset drifts from its calibrated y_0 at t = 0 */
     return P(m, k_AD) * volts + P(m, y_MU0); /* Eq. 13, before the converter's limits */
 }
 

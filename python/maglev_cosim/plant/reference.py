@@ -178,5 +178,6 @@ class ReferencePlant:
             i = self._command(self._delayed(self.time))
         force = F if p.T_F > 0 else self._force(i, x)
         yv = p.k_x * xs + p.y_0 + p.k_x2 * xs * (xs - p.x_cal) + p.A_d * math.sin(2 * math.pi * p.f_d * self.time + p.phi_d)
+        yv += p.r_y * self.time         # the sensor's offset drifting since t = 0 (effect sensor_drift)
         y = min(max(p.k_AD * yv + p.y_MU0, -1.0), 1.0)
         return {"y": y, "x": float(x), "v": float(v), "i": float(i), "F": float(force)}

@@ -21,8 +21,9 @@ converters of 10 to 16 bits (``bits``).
 
 Effects the catalogue also has, written here in the emulator's own way: ``force_exponent``
 (force law ``k_c'·i²/(x_0 − x)^n_F`` with ``k_c'`` keeping the 3.2 mm equilibrium),
-``coulomb_friction`` (``F_c·tanh(v/0.1 mm/s)``) and ``amplifier_dead_zone`` (no current while the
-amplifier's input is within ``±u_dz`` volts).
+``coulomb_friction`` (``F_c·tanh(v/0.1 mm/s)``), ``amplifier_dead_zone`` (no current while the
+amplifier's input is within ``±u_dz`` volts) and ``sensor_drift`` (the sensor voltage's offset
+creeping by ``r_y·t``).
 
 An effect the catalogue deliberately lacks, for honesty tests: ``slew_rate``, an amplifier whose
 current cannot change faster than ``di_max`` [A/s], at the actuator; and ``sensor_ripple``, a
@@ -74,6 +75,7 @@ class RigConfig:
     F_c: float = 0.0            # coulomb_friction [N]
     u_dz: float = 0.0           # amplifier_dead_zone [V]
     T_y: float = 0.0            # sensor_lag [s]: the sensor sees the position through a first-order lag
+    r_y: float = 0.0            # sensor_drift [V/s]: the sensor's offset creeps while its electronics warm up
     di_max: float = 0.0         # slew_rate [A/s] (outside the catalogue; 0 = off)
     A_r: float = 0.0            # sensor_ripple [V] (outside the catalogue; 0 = off)
     lambda_r: float = 5e-4      # its spatial period [m]
@@ -239,6 +241,8 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     for k in range(n):
         t = k * ts
         yv = c.k_x * xs + c.y_0 + c.k_x2 * xs * (xs - c.x_cal) + c.A_d * math.sin(two_pi_f * t + c.phi_d)
+        if c.r_y:   # the offset the sensor had at the start, crept on since
+            yv += c.r_y * t
         if c.A_r:   # a spatially periodic error of the sensor (an optical sensor's fringes)
             yv += c.A_r * math.sin(2 * math.pi * x / c.lambda_r)
         y = c.k_AD * yv + c.y_MU0 + noise_y[k]
