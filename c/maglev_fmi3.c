@@ -3,7 +3,7 @@
  * maglev_fmu_model. The instance logic is maglev_fmi_common.c, shared with the FMI 2.0 entry points
  * (maglev_fmu.c); this file maps the FMI 3.0 calls onto it. No event mode, no clocks, no structural
  * parameters, no intermediate update: those calls return fmi3Error with a message. The independent
- * variable time has the value reference after the model's table (its nvars), as modelDescription3.xml
+ * variable time has the value reference after the model's table (its nvars), as modelDescription3.xml (the build's)
  * and modelDescription_pid3.xml say. */
 #include <stdarg.h>
 #include <stdio.h>

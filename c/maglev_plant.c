@@ -1,4 +1,68 @@
 /* The CE152 plant equations (paper Eq. 1, 2/5, 8, 12, 13; docs/model.md). */
+
+/* The variables, declared here once (docs/adding-an-effect.md): one row per FMU variable, in value-reference
+ * order, X(name, causality, start, min, max, unit, description, effect). min, max: the inclusive range
+ * maglev_check_value enforces (ANY, POS_M: the ranges defined below); effect: the diagnosis catalogue's
+ * effect a parameter belongs to ("" for the baseline plant). maglev_plant.h includes this list alone
+ * (MAGLEV_VARIABLES_ONLY) and makes the MaglevVR enum from its names (VR_<name>); the table
+ * maglev_variables below is made from its rows. Parameters are the span from k_DA to solver_step: a new
+ * effect's parameters go just before solver_step, which moves solver_step and F up one value reference
+ * (every effect so far has; all other value references stay). */
+#ifndef MAGLEV_VARIABLES
+#define MAGLEV_VARIABLES(X) \
+    X(u, MAGLEV_INPUT, 0.0, ANY, "MU", "D/A converter input (controller output), limited to +-1 MU by the converter", "") \
+    X(y, MAGLEV_OUTPUT, 0.0, -MU_LIMIT, MU_LIMIT, "MU", "A/D converter output (position measurement), Eq. 13, limited to +-1 MU", "") \
+    X(x, MAGLEV_OUTPUT, 0.0, ANY, "m", "Ball position, growing towards the coil", "") \
+    X(v, MAGLEV_OUTPUT, 0.0, ANY, "m/s", "Ball velocity", "") \
+    X(i, MAGLEV_OUTPUT, 0.0, ANY, "A", "Coil current, Eq. 2 (Eq. 5 when T_a = 0)", "") \
+    X(k_DA, MAGLEV_PARAMETER, 5.0, 1e-3, 1e3, "V/MU", "D/A converter gain, Eq. 1 (Sec. 3.1)", "") \
+    X(u_0, MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "V", "D/A converter offset, Eq. 1 (Sec. 3.1)", "") \
+    X(k_i, MAGLEV_PARAMETER, 0.3, 1e-6, 1e3, "A/V", "Power amplifier gain, Eq. 2 (Sec. 3.2)", "") \
+    X(T_a, MAGLEV_PARAMETER, 0.3e-3, 0.0, 1.0, "s", "Power amplifier time constant, Eq. 2 (Sec. 3.2); 0 means i = k_i*u, Eq. 5", "amplifier_lag") \
+    X(m_k, MAGLEV_PARAMETER, 8.4e-3, 1e-6, 100.0, "kg", "Ball mass, Eq. 8 (Sec. 3.4.1)", "") \
+    X(g, MAGLEV_PARAMETER, 9.81, 1e-3, 100.0, "m/s2", "Gravitational acceleration, Eq. 8", "") \
+    X(k_c, MAGLEV_PARAMETER, 6.9e-6, 0.0, 1.0, "N.m2/A2", "Coil constant, Eq. 8 (Sec. 3.4.2, LQ fit)", "") \
+    X(x_0, MAGLEV_PARAMETER, 8.3e-3, POS_M, "m", "Coil offset, Eq. 8 (Sec. 3.4.2, LQ fit)", "") \
+    X(k_FV, MAGLEV_PARAMETER, 0.03, 0.0, 1e3, "N.s/m", "Viscous damping constant, Eq. 8 (Sec. 3.4.3)", "") \
+    X(k_x, MAGLEV_PARAMETER, 612.3, 1e-3, 1e6, "V/m", "Position sensor gain, Eq. 12 (Sec. 3.3)", "") \
+    X(y_0, MAGLEV_PARAMETER, 0.0125, -100.0, 100.0, "V", "Position sensor offset, Eq. 12 (Table 3)", "") \
+    X(k_AD, MAGLEV_PARAMETER, 0.2, 1e-3, 1e3, "MU/V", "A/D converter gain, Eq. 13 (Sec. 3.1)", "") \
+    X(y_MU0, MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "MU", "A/D converter offset, Eq. 13 (Sec. 3.1)", "") \
+    X(x_min, MAGLEV_PARAMETER, 0.0, POS_M, "m", "Lower mechanical stop", "") \
+    X(x_max, MAGLEV_PARAMETER, 6.3e-3, POS_M, "m", "Upper mechanical stop, below x_0", "") \
+    X(i_max, MAGLEV_PARAMETER, 1.5, 1e-6, 1e3, "A", "Largest current the amplifier delivers (lowered: a current limit)", "current_saturation") \
+    X(x_start, MAGLEV_PARAMETER, 0.0, POS_M, "m", "Initial ball position, between the stops", "") \
+    X(v_start, MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "m/s", "Initial ball velocity", "") \
+    X(i_start, MAGLEV_PARAMETER, 0.0, 0.0, 1e3, "A", "Initial coil current (used when T_a > 0), at most i_max", "") \
+    X(T_F, MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of the force lag behind the static force law (0 = off, else >= 1e-6 s)", "force_lag") \
+    X(T_d, MAGLEV_PARAMETER, 0.0, 0.0, T_D_MAX, "s", "Transport delay of the D/A signal (0 = off)", "delay") \
+    X(k_x2, MAGLEV_PARAMETER, 0.0, -1e8, 1e8, "V/m2", "Sensor deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12 (0 = off)", "sensor_nonlinearity") \
+    X(x_cal, MAGLEV_PARAMETER, 6.3e-3, 1e-6, 1.0, "m", "Second calibration point of the sensor (Table 3); the first is x = 0", "") \
+    X(A_d, MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "V", "Amplitude of sinusoidal pickup on the sensor voltage (0 = off)", "periodic_disturbance") \
+    X(f_d, MAGLEV_PARAMETER, 50.0, 0.0, 1e5, "Hz", "Frequency of the sensor pickup", "periodic_disturbance") \
+    X(phi_d, MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "rad", "Phase of the sensor pickup at t = 0", "periodic_disturbance") \
+    X(F_c, MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "N", "Coulomb friction force on the moving ball, smoothed as F_c*tanh(v/v_c) with v_c = 0.1 mm/s (0 = off)", "coulomb_friction") \
+    X(n_F, MAGLEV_PARAMETER, 2.0, 1.0, 4.0, "1", "Force-law exponent: F = k_c*i^2/(x_0 - x)^2 * ((x_0 - x_n)/(x_0 - x))^(n_F - 2) (2 = Eq. 8)", "force_exponent") \
+    X(x_n, MAGLEV_PARAMETER, 3.2e-3, POS_M, "m", "Position where a force-law exponent other than 2 leaves the force unchanged (the paper's operating point), below x_0", "force_exponent") \
+    X(u_dz, MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "V", "Half-width of the amplifier's dead zone around 0 V input (0 = off)", "amplifier_dead_zone") \
+    X(k_e, MAGLEV_PARAMETER, 0.0, 0.0, 1e3, "N/A2", "Gain of an exponential force law k_e*exp(-(x_0 - x)/z_e)*i^2 added to Eq. 8 (the form Inteco publishes; a rig with it sets k_c = 0; 0 = off)", "") \
+    X(z_e, MAGLEV_PARAMETER, 5e-3, 1e-6, 1.0, "m", "Decay length of the exponential force law", "") \
+    X(R_c, MAGLEV_PARAMETER, 0.0, 0.0, 1e4, "Ohm", "Coil resistance; > 0 selects a voltage drive: L(x, i)*di/dt = V - R_c*i - i*dL/dx*v with V the D/A voltage (Eq. 1, at least V_min), k_i and T_a unused; 0 = the current amplifier of Eq. 2", "") \
+    X(L_0, MAGLEV_PARAMETER, 0.1, 1e-6, 100.0, "H", "Coil inductance of a voltage drive far from the ball: L = L_0 + L_x*exp(-(x_0 - x)/z_L) + L_g/(x_0 - x) + L_i*atan(a_i*i - b_i)", "") \
+    X(L_x, MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "H", "Inductance the ball adds at the coil (x = x_0)", "") \
+    X(z_L, MAGLEV_PARAMETER, 5e-3, 1e-6, 1.0, "m", "Decay length of the ball's inductance", "") \
+    X(L_g, MAGLEV_PARAMETER, 0.0, 0.0, 10.0, "H.m", "Inductance of the inverse-gap form L_g/(x_0 - x) (a rig whose force follows Eq. 8 from L(x): L_g = 2*k_c)", "") \
+    X(L_i, MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "H", "Current dependence (saturation) of the inductance, below L_0*2/pi", "") \
+    X(a_i, MAGLEV_PARAMETER, 1.0, 0.0, 1e3, "1/A", "Current scale of the inductance's current dependence", "") \
+    X(b_i, MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "1", "Offset of the inductance's current dependence", "") \
+    X(V_min, MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "V", "Lowest coil voltage a voltage drive applies (a PWM stage's floor)", "") \
+    X(T_y, MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of a first-order lag through which the sensor sees the position (0 = off)", "sensor_lag") \
+    X(r_y, MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "V/s", "Rate at which the sensor voltage's offset drifts, r_y*t added to Eq. 12 (the sensor electronics warming up; 0 = off)", "sensor_drift") \
+    X(solver_step, MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step", "") \
+    X(F, MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8", "")
+#endif
+
+#ifndef MAGLEV_VARIABLES_ONLY
 #include "maglev_plant.h"
 
 #include <math.h>
@@ -24,58 +88,10 @@
 #define ANY -INFINITY, INFINITY
 #define POS_M -1.0, 1.0 /* [m] positions: the rig is a few mm tall */
 
-const MaglevVariable maglev_variables[MAGLEV_NVARS] = {
-    [VR_u] = {"u", MAGLEV_INPUT, 0.0, ANY, "MU", "D/A converter input (controller output), limited to +-1 MU by the converter", ""},
-    [VR_y] = {"y", MAGLEV_OUTPUT, 0.0, -MU_LIMIT, MU_LIMIT, "MU", "A/D converter output (position measurement), Eq. 13, limited to +-1 MU", ""},
-    [VR_x] = {"x", MAGLEV_OUTPUT, 0.0, ANY, "m", "Ball position, growing towards the coil", ""},
-    [VR_v] = {"v", MAGLEV_OUTPUT, 0.0, ANY, "m/s", "Ball velocity", ""},
-    [VR_i] = {"i", MAGLEV_OUTPUT, 0.0, ANY, "A", "Coil current, Eq. 2 (Eq. 5 when T_a = 0)", ""},
-    [VR_k_DA] = {"k_DA", MAGLEV_PARAMETER, 5.0, 1e-3, 1e3, "V/MU", "D/A converter gain, Eq. 1 (Sec. 3.1)", ""},
-    [VR_u_0] = {"u_0", MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "V", "D/A converter offset, Eq. 1 (Sec. 3.1)", ""},
-    [VR_k_i] = {"k_i", MAGLEV_PARAMETER, 0.3, 1e-6, 1e3, "A/V", "Power amplifier gain, Eq. 2 (Sec. 3.2)", ""},
-    [VR_T_a] = {"T_a", MAGLEV_PARAMETER, 0.3e-3, 0.0, 1.0, "s", "Power amplifier time constant, Eq. 2 (Sec. 3.2); 0 means i = k_i*u, Eq. 5", "amplifier_lag"},
-    [VR_m_k] = {"m_k", MAGLEV_PARAMETER, 8.4e-3, 1e-6, 100.0, "kg", "Ball mass, Eq. 8 (Sec. 3.4.1)", ""},
-    [VR_g] = {"g", MAGLEV_PARAMETER, 9.81, 1e-3, 100.0, "m/s2", "Gravitational acceleration, Eq. 8", ""},
-    [VR_k_c] = {"k_c", MAGLEV_PARAMETER, 6.9e-6, 0.0, 1.0, "N.m2/A2", "Coil constant, Eq. 8 (Sec. 3.4.2, LQ fit)", ""},
-    [VR_x_0] = {"x_0", MAGLEV_PARAMETER, 8.3e-3, POS_M, "m", "Coil offset, Eq. 8 (Sec. 3.4.2, LQ fit)", ""},
-    [VR_k_FV] = {"k_FV", MAGLEV_PARAMETER, 0.03, 0.0, 1e3, "N.s/m", "Viscous damping constant, Eq. 8 (Sec. 3.4.3)", ""},
-    [VR_k_x] = {"k_x", MAGLEV_PARAMETER, 612.3, 1e-3, 1e6, "V/m", "Position sensor gain, Eq. 12 (Sec. 3.3)", ""},
-    [VR_y_0] = {"y_0", MAGLEV_PARAMETER, 0.0125, -100.0, 100.0, "V", "Position sensor offset, Eq. 12 (Table 3)", ""},
-    [VR_k_AD] = {"k_AD", MAGLEV_PARAMETER, 0.2, 1e-3, 1e3, "MU/V", "A/D converter gain, Eq. 13 (Sec. 3.1)", ""},
-    [VR_y_MU0] = {"y_MU0", MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "MU", "A/D converter offset, Eq. 13 (Sec. 3.1)", ""},
-    [VR_x_min] = {"x_min", MAGLEV_PARAMETER, 0.0, POS_M, "m", "Lower mechanical stop", ""},
-    [VR_x_max] = {"x_max", MAGLEV_PARAMETER, 6.3e-3, POS_M, "m", "Upper mechanical stop, below x_0", ""},
-    [VR_i_max] = {"i_max", MAGLEV_PARAMETER, 1.5, 1e-6, 1e3, "A", "Largest current the amplifier delivers (lowered: a current limit)", "current_saturation"},
-    [VR_x_start] = {"x_start", MAGLEV_PARAMETER, 0.0, POS_M, "m", "Initial ball position, between the stops", ""},
-    [VR_v_start] = {"v_start", MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "m/s", "Initial ball velocity", ""},
-    [VR_i_start] = {"i_start", MAGLEV_PARAMETER, 0.0, 0.0, 1e3, "A", "Initial coil current (used when T_a > 0), at most i_max", ""},
-    [VR_T_F] = {"T_F", MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of the force lag behind the static force law (0 = off, else >= 1e-6 s)", "force_lag"},
-    [VR_T_d] = {"T_d", MAGLEV_PARAMETER, 0.0, 0.0, T_D_MAX, "s", "Transport delay of the D/A signal (0 = off)", "delay"},
-    [VR_k_x2] = {"k_x2", MAGLEV_PARAMETER, 0.0, -1e8, 1e8, "V/m2", "Sensor deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12 (0 = off)", "sensor_nonlinearity"},
-    [VR_x_cal] = {"x_cal", MAGLEV_PARAMETER, 6.3e-3, 1e-6, 1.0, "m", "Second calibration point of the sensor (Table 3); the first is x = 0", ""},
-    [VR_A_d] = {"A_d", MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "V", "Amplitude of sinusoidal pickup on the sensor voltage (0 = off)", "periodic_disturbance"},
-    [VR_f_d] = {"f_d", MAGLEV_PARAMETER, 50.0, 0.0, 1e5, "Hz", "Frequency of the sensor pickup", "periodic_disturbance"},
-    [VR_phi_d] = {"phi_d", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "rad", "Phase of the sensor pickup at t = 0", "periodic_disturbance"},
-    [VR_F_c] = {"F_c", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "N", "Coulomb friction force on the moving ball, smoothed as F_c*tanh(v/v_c) with v_c = 0.1 mm/s (0 = off)", "coulomb_friction"},
-    [VR_n_F] = {"n_F", MAGLEV_PARAMETER, 2.0, 1.0, 4.0, "1", "Force-law exponent: F = k_c*i^2/(x_0 - x)^2 * ((x_0 - x_n)/(x_0 - x))^(n_F - 2) (2 = Eq. 8)", "force_exponent"},
-    [VR_x_n] = {"x_n", MAGLEV_PARAMETER, 3.2e-3, POS_M, "m", "Position where a force-law exponent other than 2 leaves the force unchanged (the paper's operating point), below x_0", "force_exponent"},
-    [VR_u_dz] = {"u_dz", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "V", "Half-width of the amplifier's dead zone around 0 V input (0 = off)", "amplifier_dead_zone"},
-    [VR_k_e] = {"k_e", MAGLEV_PARAMETER, 0.0, 0.0, 1e3, "N/A2", "Gain of an exponential force law k_e*exp(-(x_0 - x)/z_e)*i^2 added to Eq. 8 (the form Inteco publishes; a rig with it sets k_c = 0; 0 = off)", ""},
-    [VR_z_e] = {"z_e", MAGLEV_PARAMETER, 5e-3, 1e-6, 1.0, "m", "Decay length of the exponential force law", ""},
-    [VR_R_c] = {"R_c", MAGLEV_PARAMETER, 0.0, 0.0, 1e4, "Ohm", "Coil resistance; > 0 selects a voltage drive: L(x, i)*di/dt = V - R_c*i - i*dL/dx*v with V the D/A voltage (Eq. 1, at least V_min), k_i and T_a unused; 0 = the current amplifier of Eq. 2", ""},
-    [VR_L_0] = {"L_0", MAGLEV_PARAMETER, 0.1, 1e-6, 100.0, "H", "Coil inductance of a voltage drive far from the ball: L = L_0 + L_x*exp(-(x_0 - x)/z_L) + L_g/(x_0 - x) + L_i*atan(a_i*i - b_i)", ""},
-    [VR_L_x] = {"L_x", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "H", "Inductance the ball adds at the coil (x = x_0)", ""},
-    [VR_z_L] = {"z_L", MAGLEV_PARAMETER, 5e-3, 1e-6, 1.0, "m", "Decay length of the ball's inductance", ""},
-    [VR_L_g] = {"L_g", MAGLEV_PARAMETER, 0.0, 0.0, 10.0, "H.m", "Inductance of the inverse-gap form L_g/(x_0 - x) (a rig whose force follows Eq. 8 from L(x): L_g = 2*k_c)", ""},
-    [VR_L_i] = {"L_i", MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "H", "Current dependence (saturation) of the inductance, below L_0*2/pi", ""},
-    [VR_a_i] = {"a_i", MAGLEV_PARAMETER, 1.0, 0.0, 1e3, "1/A", "Current scale of the inductance's current dependence", ""},
-    [VR_b_i] = {"b_i", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "1", "Offset of the inductance's current dependence", ""},
-    [VR_V_min] = {"V_min", MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "V", "Lowest coil voltage a voltage drive applies (a PWM stage's floor)", ""},
-    [VR_T_y] = {"T_y", MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of a first-order lag through which the sensor sees the position (0 = off)", "sensor_lag"},
-    [VR_r_y] = {"r_y", MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "V/s", "Rate at which the sensor voltage's offset drifts, r_y*t added to Eq. 12 (the sensor electronics warming up; 0 = off)", "sensor_drift"},
-    [VR_solver_step] = {"solver_step", MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step", ""},
-    [VR_F] = {"F", MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8", ""},
-};
+/* The table of every FMU variable, from the rows of MAGLEV_VARIABLES above. */
+#define MAGLEV_ROW(name, ...) [VR_##name] = {#name, __VA_ARGS__},
+const MaglevVariable maglev_variables[MAGLEV_NVARS] = {MAGLEV_VARIABLES(MAGLEV_ROW)};
+#undef MAGLEV_ROW
 
 #define P(m, name) ((m)->p[VR_##name - MAGLEV_FIRST_PARAM])
 
@@ -1176,3 +1192,4 @@ int maglev_deserialize(MaglevPlant *m, MaglevTag *tag, const unsigned char *buf,
     *tag = tg_read;
     return 0;
 }
+#endif /* MAGLEV_VARIABLES_ONLY */

@@ -5,61 +5,18 @@
 
 #include <stddef.h>
 
-/* Value references. The order is the FMU's interface: modelDescription.xml
- * must list the same names with the same numbers (tests/test_model_description.py). */
-typedef enum {
-    VR_u = 0,
-    VR_y,
-    VR_x,
-    VR_v,
-    VR_i,
-    VR_k_DA,
-    VR_u_0,
-    VR_k_i,
-    VR_T_a,
-    VR_m_k,
-    VR_g,
-    VR_k_c,
-    VR_x_0,
-    VR_k_FV,
-    VR_k_x,
-    VR_y_0,
-    VR_k_AD,
-    VR_y_MU0,
-    VR_x_min,
-    VR_x_max,
-    VR_i_max,
-    VR_x_start,
-    VR_v_start,
-    VR_i_start,
-    VR_T_F,
-    VR_T_d,
-    VR_k_x2,
-    VR_x_cal,
-    VR_A_d,
-    VR_f_d,
-    VR_phi_d,
-    VR_F_c,
-    VR_n_F,
-    VR_x_n,
-    VR_u_dz,
-    VR_k_e,
-    VR_z_e,
-    VR_R_c,
-    VR_L_0,
-    VR_L_x,
-    VR_z_L,
-    VR_L_g,
-    VR_L_i,
-    VR_a_i,
-    VR_b_i,
-    VR_V_min,
-    VR_T_y,
-    VR_r_y,
-    VR_solver_step,
-    VR_F,
-    MAGLEV_NVARS
-} MaglevVR;
+/* Value references: VR_<name> for each row of the variable list MAGLEV_VARIABLES at the top of
+ * maglev_plant.c, in its order (the FMU's interface: modelDescription.xml lists the same names with the same
+ * numbers, tests/test_model_description.py). The list is read from there, alone, so that a variable is
+ * declared in one place. */
+#ifndef MAGLEV_VARIABLES
+#define MAGLEV_VARIABLES_ONLY
+#include "maglev_plant.c"
+#undef MAGLEV_VARIABLES_ONLY
+#endif
+#define MAGLEV_VR_NAME(name, ...) VR_##name,
+typedef enum { MAGLEV_VARIABLES(MAGLEV_VR_NAME) MAGLEV_NVARS } MaglevVR;
+#undef MAGLEV_VR_NAME
 
 #define MAGLEV_FIRST_PARAM VR_k_DA
 #define MAGLEV_NPARAMS (VR_solver_step - VR_k_DA + 1)

@@ -1,12 +1,13 @@
 """Markdown tables of the FMU's variables, read from modelDescription.xml (not written by hand).
 
-    python scripts/fmu_variables.py [--key] [modelDescription.xml]
+    python scripts/fmu_variables.py [--key] [--out FILE] [modelDescription.xml]
 
-prints one table row per variable: name, causality, unit, start, range (min to max) and the
-description. ``--key`` keeps the variables the README lists (the input, the outputs and the
-parameters a newcomer sets first), without the range. README.md carries the ``--key`` table and
-docs/fmu.md the whole one, both verbatim; tests/test_readme.py checks that they equal what this
-prints.
+prints (or writes into FILE) one table row per variable: name, causality, unit, start, range (min to
+max) and the description. ``--key`` keeps the variables the README lists (the input, the outputs and
+the parameters a newcomer sets first), without the range. README.md carries the ``--key`` table
+verbatim (tests/test_readme.py checks it); the whole table is not committed: the build writes it to
+``build/fmu_variables.md`` (CMakeLists.txt), and docs/fmu.md points there
+(tests/test_model_description.py checks it against the C table).
 """
 
 from __future__ import annotations
@@ -54,10 +55,19 @@ def table(xml_path: str | Path = REPO / "modelDescription.xml", *, key: bool = F
 def main(argv: list[str]) -> int:
     key = "--key" in argv
     args = [a for a in argv if a != "--key"]
+    out = None
+    if "--out" in args:
+        k = args.index("--out")
+        out = Path(args[k + 1]) if k + 1 < len(args) else None
+        args = args[:k] + args[k + 2:] if out else ["-"]
     if len(args) > 1 or any(a.startswith("-") for a in args):
         print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
         return 2
-    sys.stdout.write(table(args[0] if args else REPO / "modelDescription.xml", key=key))
+    text = table(args[0] if args else REPO / "modelDescription.xml", key=key)
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        out.write_text(text)
     return 0
 
 

@@ -2,7 +2,8 @@
 # Sets up everything from a fresh clone: .venv with the package installed from source (`pip install .`:
 # scikit-build-core runs CMake, so the installed package carries the FMU, the C sources and the
 # fast-path library) plus the test tools, and the CMake build in build/ (build/maglev.fmu, build/maglev3.fmu,
-# build/maglev_pid.fmu, build/maglev_pid3.fmu, C tests), then the closed loop build/maglev_loop.ssp and build/maglev_loop.fmu.
+# build/maglev_pid.fmu, build/maglev_pid3.fmu, C tests; build/modelDescription3.xml and build/fmu_variables.md
+# generated from the C variable table), then the closed loop build/maglev_loop.ssp and build/maglev_loop.fmu.
 # Needs only python3 (with venv), gcc and cmake. Safe to run again: it reinstalls the package only
 # when its sources changed (a hash of pyproject.toml, CMakeLists.txt, modelDescription.xml, c/, python/).
 set -euo pipefail
@@ -63,7 +64,7 @@ pip_quiet() {  # pip, quiet, without the warnings about unreachable extra packag
   return "${PIPESTATUS[0]}"
 }
 sources_hash() {
-  find pyproject.toml CMakeLists.txt modelDescription.xml modelDescription3.xml modelDescription_pid.xml \
+  find pyproject.toml CMakeLists.txt modelDescription.xml modelDescription_pid.xml \
        modelDescription_pid3.xml c python -type f \
        \( -name '*.py' -o -name '*.c' -o -name '*.h' -o -name '*.toml' -o -name '*.txt' -o -name '*.xml' \) \
        -not -path '*/__pycache__/*' -print0 | LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1

@@ -4,26 +4,65 @@ from __future__ import annotations
 
 import math
 import re
+import subprocess
+import sys
 import zipfile
 
 import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
+import maglev_cosim
+from maglev_cosim import _resources
 from maglev_cosim.loop.fmu import FmuPlant
-from maglev_cosim.plant.model_description import GENERATION_DATE, GUID, UNITS, generate, nominal, read_table, unit_info
+from maglev_cosim.plant.model_description import (GENERATION_DATE, GUID, UNITS, generate, nominal, read_table,
+                                                  unit_info, variable_names)
 
 REQUIRED_PARAMETERS = ["k_DA", "u_0", "k_i", "T_a", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "y_0", "k_AD",
                        "y_MU0", "x_min", "x_max", "i_max", "x_start", "v_start", "i_start"]
 
 
-@pytest.mark.parametrize("fmi_version, xml", [(2, "modelDescription.xml"), (3, "modelDescription3.xml")])
-def test_committed_xml_is_what_the_c_table_generates(repo, fmu_binary, fmi_version, xml):
-    committed = (repo / xml).read_text()
-    generated = generate(read_table(fmu_binary), fmi_version=fmi_version)
+def test_committed_xml_is_what_the_c_table_generates(repo, fmu_binary):
+    committed = (repo / "modelDescription.xml").read_text()
+    generated = generate(read_table(fmu_binary))
     assert committed == generated, (
-        f"{xml} differs from the C variable table: run python -m maglev_cosim.plant.model_description "
-        f"--fmi {fmi_version} {fmu_binary} {repo / xml}")
+        "modelDescription.xml differs from the C variable table: run python -m maglev_cosim.plant.model_description "
+        f"{fmu_binary} {repo / 'modelDescription.xml'}")
+
+
+def test_fmi3_description_is_generated_by_the_build_from_the_c_table(repo, fmu_binary):
+    """modelDescription3.xml is not committed: the build writes build/modelDescription3.xml from the C table
+    (CMakeLists.txt), and the FMI 3.0 FMU and the installed package carry that file."""
+    assert not (repo / "modelDescription3.xml").exists(), "modelDescription3.xml is generated into build/, not committed"
+    generated = generate(read_table(fmu_binary), fmi_version=3)
+    built = repo / "build" / "modelDescription3.xml"
+    assert built.exists(), f"{built} is missing: run scripts/setup.sh (the CMake build in build/)"
+    assert built.read_text() == generated
+    assert _resources.model_description_path(3).read_text() == generated
+    with zipfile.ZipFile(maglev_cosim.fmu_path(fmi_version=3)) as z:
+        assert z.read("modelDescription.xml").decode() == generated
+    with zipfile.ZipFile(repo / "build" / "maglev3.fmu") as z:
+        assert z.read("modelDescription.xml").decode() == generated
+
+
+def test_the_table_of_every_variable_is_generated_from_the_c_table(repo, fmu_binary, tmp_path):
+    """docs/fmu.md's table of every variable is build/fmu_variables.md, written by the build: it is what
+    scripts/fmu_variables.py prints from a model description generated from the C table here, one row per
+    row of the C table; docs/fmu.md holds no copy and points to it."""
+    table = read_table(fmu_binary)
+    xml = tmp_path / "modelDescription.xml"
+    xml.write_text(generate(table))
+    r = subprocess.run([sys.executable, str(repo / "scripts" / "fmu_variables.py"), str(xml)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    built = repo / "build" / "fmu_variables.md"
+    assert built.exists(), f"{built} is missing: run scripts/setup.sh (the CMake build in build/)"
+    assert built.read_text() == r.stdout
+    rows = [line for line in r.stdout.splitlines()[2:]]
+    assert [re.match(r"\| `(\w+)` \|", line).group(1) for line in rows] == [v.name for v in table]
+    fmu_md = (repo / "docs" / "fmu.md").read_text()
+    assert "build/fmu_variables.md" in fmu_md
+    assert not any(f"| `{v.name}` | {v.causality} |" in fmu_md for v in table), "docs/fmu.md: a hand copy of the table"
 
 
 def test_generation_date_is_fixed_not_the_clock(repo):
@@ -108,12 +147,14 @@ def test_nominal_and_display_units(fmu_binary):
     assert UNITS["s"].display == ("ms", 1e3)
 
 
-def test_value_references_follow_the_c_enum(repo):
-    header = (repo / "c" / "maglev_plant.h").read_text()
-    enum = re.search(r"typedef enum \{(.*?)\} MaglevVR;", header, re.S).group(1)
-    names = re.findall(r"\bVR_(\w+)", enum)
+def test_value_references_follow_the_c_list(repo):
+    """The value references are the rows of MAGLEV_VARIABLES (c/maglev_plant.c) in order, from which
+    maglev_plant.h makes the enum; the first ones are the interface every importer has used."""
+    names = variable_names(repo / "c")
     md = read_model_description(str(repo / "modelDescription.xml"))
     assert [(v.name, v.valueReference) for v in md.modelVariables] == [(n, k) for k, n in enumerate(names)]
+    assert names[:6] == ["u", "y", "x", "v", "i", "k_DA"] and names[-2:] == ["solver_step", "F"]
+    assert len(names) == len(set(names)) > 40
 
 
 def test_guid_is_the_same_everywhere(repo):

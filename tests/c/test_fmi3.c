@@ -15,7 +15,7 @@
 #include "check.h"
 #include "temp_dir.h"
 
-/* Must equal the instantiationToken of modelDescription3.xml (tests/test_model_description.py). */
+/* Must equal the instantiationToken of build/modelDescription3.xml (tests/test_model_description.py). */
 #define MAGLEV_GUID "{6f1f0e8c-5a3b-4c1e-9b52-ce152a0f0001}"
 #define VR_TIME ((fmi3ValueReference)MAGLEV_NVARS)
 

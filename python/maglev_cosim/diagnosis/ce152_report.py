@@ -103,6 +103,16 @@ def write_calibrated_fmu(rec: Record, d: Diagnosis, fmu: Path, out: Path, report
                           documentation=docs, source_sha256=cal["record"]["sha256"])
 
 
+def _save(plt, fig, path: Path, title: str) -> str:
+    """Every figure of the report the same way: its title (what it shows and the model), laid out,
+    written to ``path`` at 110 dpi and closed; returns the file's name."""
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
+
+
 def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
     import matplotlib
 
@@ -126,12 +136,9 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].set_ylabel(f"{sig} [MU]")
         ax[k].legend(loc="upper right", fontsize=8, ncol=4)
     ax[1].set_xlabel("t [s]")
-    fig.suptitle("Measured versus simulated closed loop (free run; fit = 100·(1 − ‖y − ŷ‖/‖y − mean y‖), "
-                 "as MATLAB's compare)\n" + model, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(out / "measured_vs_simulated.png", dpi=110)
-    plt.close(fig)
-    files.append("measured_vs_simulated.png")
+    files.append(_save(plt, fig, out / "measured_vs_simulated.png",
+                       "Measured versus simulated closed loop (free run; fit = 100·(1 − ‖y − ŷ‖/‖y − mean y‖), "
+                       "as MATLAB's compare)\n" + model))
 
     # zoom on the 0.6 s where the calibrated baseline misses most
     err = np.convolve((rec.u - before["u"]) ** 2, np.ones(300), mode="same")
@@ -152,11 +159,7 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].set_ylabel(f"{sig} [MU]")
         ax[k].legend(loc="upper right", fontsize=8, ncol=4)
     ax[1].set_xlabel("t [s]")
-    fig.suptitle("Zoom where the calibrated baseline misses most" + "\n" + model, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(out / "zoom.png", dpi=110)
-    plt.close(fig)
-    files.append("zoom.png")
+    files.append(_save(plt, fig, out / "zoom.png", "Zoom where the calibrated baseline misses most" + "\n" + model))
 
     fig, ax = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
@@ -165,11 +168,7 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].set_ylabel(f"{sig} measured - simulated [MU]")
         ax[k].legend(loc="upper right", fontsize=8)
     ax[1].set_xlabel("t [s]")
-    fig.suptitle("Residual before and after" + "\n" + model, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(out / "residual.png", dpi=110)
-    plt.close(fig)
-    files.append("residual.png")
+    files.append(_save(plt, fig, out / "residual.png", "Residual before and after" + "\n" + model))
 
     fig, ax = plt.subplots(2, 1, figsize=(11, 6), sharex=True)
     for k, (sig, meas) in enumerate((("y", rec.y), ("u", rec.u))):
@@ -180,11 +179,8 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         ax[k].legend(loc="upper right", fontsize=8)
         ax[k].grid(True, which="both", alpha=0.3)
     ax[1].set_xlabel("frequency [Hz]")
-    fig.suptitle("Power spectral density of the residual (Welch, 2 s Hann segments)" + "\n" + model, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(out / "spectrum.png", dpi=110)
-    plt.close(fig)
-    files.append("spectrum.png")
+    files.append(_save(plt, fig, out / "spectrum.png",
+                       "Power spectral density of the residual (Welch, 2 s Hann segments)" + "\n" + model))
 
     # MATLAB resid on what the verdict judges: the one-step innovations of the final model's Kalman
     # filter (their predictable share decides `unexplained`), against its past, the reference and
@@ -219,11 +215,8 @@ def _plots(rec: Record, d: Diagnosis, out: Path) -> list[str]:
         for a in ax:
             a.set_axis_off()
         what = "no verdict: no innovations"
-    fig.suptitle(f"Residual analysis of the final model (as MATLAB's resid): {what}" + "\n" + model, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(out / "resid.png", dpi=110)
-    plt.close(fig)
-    files.append("resid.png")
+    files.append(_save(plt, fig, out / "resid.png",
+                       f"Residual analysis of the final model (as MATLAB's resid): {what}" + "\n" + model))
     if d.verdict is not None and d.verdict.corrections:
         files.append(_location_plot(d.verdict.corrections, out, plt, model))
     return files
@@ -281,12 +274,8 @@ def _location_plot(corrections, out: Path, plt, model: str = "") -> str:
         if c is motion:
             a.axvline(0.0, color="0.6", lw=0.8)
         a.grid(alpha=0.3)
-    fig.suptitle("Where the residual enters: the best generic correction at each place in the loop"
-                 + ("\n" + model if model else ""), fontsize=10)
-    fig.tight_layout()
-    fig.savefig(out / "location.png", dpi=110)
-    plt.close(fig)
-    return "location.png"
+    return _save(plt, fig, out / "location.png", "Where the residual enters: the best generic correction at each "
+                 "place in the loop" + ("\n" + model if model else ""))
 
 
 def _fmt(v: float) -> str:

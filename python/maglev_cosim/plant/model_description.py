@@ -1,12 +1,13 @@
 """Model descriptions (FMI 2.0 and 3.0) from the C variable table, so the two cannot drift apart.
 
-The C plant (``c/maglev_plant.c``) owns the variable table ``maglev_variables``: names,
-value references (the ``MaglevVR`` enum order), causality, start values, the ``[min, max]`` range
-``maglev_check_value`` enforces, units and descriptions. :func:`read_table` reads that table out of
-the compiled FMU binary (the declarations come from the installed header) and :func:`generate`
-renders it, with an :class:`Identity` (model name, identifier, GUID / instantiationToken,
-description), as ``modelDescription.xml`` for FMI 2.0 or 3.0. Any FMU whose C table has the
-``MaglevVariable`` layout can use it (``read_table(lib, header=..., table=..., enum=...)``).
+The C plant (``c/maglev_plant.c``) owns the variable table ``maglev_variables``, made from the list
+``MAGLEV_VARIABLES`` at its top: names, value references (the list's order, which is the ``MaglevVR``
+enum's), causality, start values, the ``[min, max]`` range ``maglev_check_value`` enforces, units,
+descriptions and effects. :func:`read_table` reads that table out of the compiled FMU binary (the
+declarations come from the C sources, :func:`variable_names`) and :func:`generate` renders it, with an
+:class:`Identity` (model name, identifier, GUID / instantiationToken, description), as
+``modelDescription.xml`` for FMI 2.0 or 3.0. Any FMU whose C table has the ``MaglevVariable`` layout can
+use it (``read_table(lib, table=..., names=...)``).
 
 What the generator adds to the table, from the unit alone (:data:`UNITS`): the SI base units, a
 ``TypeDefinitions`` entry per unit (its quantity), a ``displayUnit`` where people think in mm, mA
@@ -19,20 +20,21 @@ changes the committed files; ``python -m maglev_cosim.plant.model_description`` 
 ``$SOURCE_DATE_EPOCH`` instead when it is set (reproducible-builds convention), and the drift test
 then fails until the constant is updated to match, on purpose.
 
-``tests/test_model_description.py`` fails when the committed files differ from what the binary
-says. Regenerate, from the repository root after ``scripts/setup.sh``, with
-``python -m maglev_cosim.plant.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``
-and ``... --fmi 3 build/fmu/binaries/linux64/maglev.so modelDescription3.xml``; the controller
+``tests/test_model_description.py`` fails when the committed ``modelDescription.xml`` differs from what
+the binary says. Regenerate, from the repository root after ``scripts/setup.sh``, with
+``python -m maglev_cosim.plant.model_description build/fmu/binaries/linux64/maglev.so modelDescription.xml``.
+The FMI 3.0 one is not committed: the build writes ``build/modelDescription3.xml`` with
+``... --fmi 3 --c c/ <the plant library> build/modelDescription3.xml`` (CMakeLists.txt); the controller
 FMU's with ``... --pid build/maglev_pid.so modelDescription_pid.xml`` and
 ``... --pid --fmi 3 build/maglev_pid.so modelDescription_pid3.xml``.
 """
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 import re
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -191,36 +193,50 @@ def pid_identity(fmi_version: int = 2) -> Identity:
     )
 
 
-def read_pid_table(library: str | Path, header: str | Path | None = None) -> list[Variable]:
-    """The controller FMU's variable table, out of its compiled binary."""
-    return read_table(library, header=header or c_dir() / "maglev_pid_fmu.h", table="maglev_pid_variables",
-                      enum="MaglevPidVR", prefix="PID_", count="MAGLEV_PID_NVARS")
+def read_pid_table(library: str | Path, header: str | Path | None = None, *,
+                   c: str | Path | None = None) -> list[Variable]:
+    """The controller FMU's variable table, out of its compiled binary (``c``: the folder of the C
+    sources, by default the installed ones)."""
+    header = Path(header) if header else Path(c or c_dir()) / "maglev_pid_fmu.h"
+    body = re.search(r"typedef enum \{(.*?)\} MaglevPidVR;", header.read_text(), re.S)
+    if body is None:
+        raise RuntimeError(f"{header}: MaglevPidVR enum not found")
+    names = re.findall(r"\bPID_(\w+)\b", body.group(1))
+    return read_table(library, c=c, table="maglev_pid_variables", names=names)
 
 
-def read_table(library: str | Path, *, header: str | Path | None = None, table: str = "maglev_variables",
-               enum: str = "MaglevVR", prefix: str = "VR_", count: str = "MAGLEV_NVARS") -> list[Variable]:
-    """Reads a ``MaglevVariable`` table (by default the plant's) out of a compiled shared library."""
+def variable_names(c: str | Path | None = None) -> list[str]:
+    """The plant's variable names in value-reference order: the rows of the list ``MAGLEV_VARIABLES``
+    at the top of ``c/maglev_plant.c``, from which ``maglev_plant.h`` makes the ``MaglevVR`` enum."""
+    source = Path(c or c_dir()) / "maglev_plant.c"
+    body = re.search(r"#define MAGLEV_VARIABLES\(X\) \\\n(.*?)\n#endif", source.read_text(), re.S)
+    if body is None:
+        raise RuntimeError(f"{source}: the list MAGLEV_VARIABLES not found")
+    return re.findall(r"^\s*X\((\w+),", body.group(1), re.M)
+
+
+def read_table(library: str | Path, *, c: str | Path | None = None, table: str = "maglev_variables",
+               names: list[str] | None = None) -> list[Variable]:
+    """Reads a ``MaglevVariable`` table (by default the plant's, whose names are :func:`variable_names`)
+    out of a compiled shared library; ``c`` is the folder of the C sources (the installed ones by
+    default). Each row must carry the name the enum gives its value reference."""
     ffi = cffi.FFI()
-    plant_header = (c_dir() / "maglev_plant.h").read_text()
+    plant_header = (Path(c or c_dir()) / "maglev_plant.h").read_text()
     for name in ("MaglevCausality", "MaglevVariable"):     # the C declarations, as the header has them
         decl = re.search(r"typedef (?:enum|struct) \{[^}]*\} " + name + ";", plant_header)
         if decl is None:
             raise RuntimeError(f"c/maglev_plant.h: {name} not found")
         ffi.cdef(decl.group(0))
-    text = plant_header if header is None else Path(header).read_text()
-    body = re.search(r"typedef enum \{(.*?)\} " + enum + ";", text, re.S)
-    if body is None:
-        raise RuntimeError(f"{header or 'c/maglev_plant.h'}: {enum} enum not found")
-    names = re.findall(r"\b(" + prefix + r"\w+|" + count + r")\b", body.group(1))
-    nvars = names.index(count)
+    names = variable_names(c) if names is None else names
+    nvars = len(names)
     ffi.cdef(f"extern const MaglevVariable {table}[{nvars}];")
     lib = ffi.dlopen(str(library))
     rows = []
     for vr in range(nvars):
         v = getattr(lib, table)[vr]
         name = ffi.string(v.name).decode()
-        if prefix + name != names[vr]:
-            raise RuntimeError(f"C table row {vr} is {name!r} but the enum says {names[vr]}")
+        if name != names[vr]:
+            raise RuntimeError(f"C table row {vr} is {name!r} but the enum says {names[vr]!r}")
         rows.append(Variable(vr, name, CAUSALITY[v.causality], float(v.start), ffi.string(v.unit).decode(),
                              ffi.string(v.description).decode(), float(v.min), float(v.max),
                              ffi.string(v.effect).decode()))
@@ -327,6 +343,12 @@ def generate(variables: list[Variable], ident: Identity | None = None, fmi_versi
     return (_generate2 if fmi_version == 2 else _generate3)(variables, ident)
 
 
+#: A variable's causality, variability and initial, the same in FMI 2.0 and 3.0.
+_KIND = {"input": 'causality="input" variability="continuous"',
+         "output": 'causality="output" variability="continuous" initial="calculated"',
+         "parameter": 'causality="parameter" variability="fixed" initial="exact"'}
+
+
 def _generate2(variables: list[Variable], ident: Identity) -> str:
     out = _header(ident, 2) + [
         '  <CoSimulation',
@@ -347,12 +369,7 @@ def _generate2(variables: list[Variable], ident: Identity) -> str:
         out.append(f'    <!-- index {v.value_reference + 1} -->')
         head = (f'    <ScalarVariable name="{v.name}" valueReference="{v.value_reference}" '
                 f'description={quoteattr(v.described)}')
-        if v.causality == "input":
-            out.append(f'{head} causality="input" variability="continuous">')
-        elif v.causality == "output":
-            out.append(f'{head} causality="output" variability="continuous" initial="calculated">')
-        else:
-            out.append(f'{head} causality="parameter" variability="fixed" initial="exact">')
+        out.append(f'{head} {_KIND[v.causality]}>')
         out.append(f'      <Real {_real_attrs(v, with_start=v.causality != "output")}/>')
         out.append('    </ScalarVariable>')
     out += ['  </ModelVariables>', '  <ModelStructure>', '    <Outputs>']
@@ -389,13 +406,7 @@ def _generate3(variables: list[Variable], ident: Identity) -> str:
     for v in variables:
         head = (f'    <Float64 name="{v.name}" valueReference="{v.value_reference}" '
                 f'description={quoteattr(v.described)}')
-        if v.causality == "input":
-            kind = 'causality="input" variability="continuous"'
-        elif v.causality == "output":
-            kind = 'causality="output" variability="continuous" initial="calculated"'
-        else:
-            kind = 'causality="parameter" variability="fixed" initial="exact"'
-        out.append(f'{head} {kind} {_real_attrs(v, with_start=v.causality != "output")}/>')
+        out.append(f'{head} {_KIND[v.causality]} {_real_attrs(v, with_start=v.causality != "output")}/>')
     out += ['  </ModelVariables>', '  <ModelStructure>']
     outputs = [v for v in variables if v.causality == "output"]
     for v in outputs:
@@ -415,23 +426,20 @@ def _date_from_environment() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
-    fmi_version = 2
-    pid = bool(args) and args[0] == "--pid"
-    args = args[1:] if pid else args
-    if len(args) >= 2 and args[0] == "--fmi":
-        fmi_version = int(args[1])
-        args = args[2:]
-    if len(args) not in (1, 2) or fmi_version not in (2, 3):
-        print("usage: python -m maglev_cosim.plant.model_description [--fmi 2|3] PATH/TO/maglev.so [OUT.xml]\n"
-              "       python -m maglev_cosim.plant.model_description --pid [--fmi 2|3] PATH/TO/maglev_pid.so [OUT.xml]\n"
-              "writes OUT.xml (default: modelDescription.xml in the current folder)", file=sys.stderr)
-        return 2
-    target = Path(args[1] if len(args) == 2 else "modelDescription.xml")
-    ident = pid_identity(fmi_version) if pid else plant_identity(fmi_version)
+    ap = argparse.ArgumentParser(prog="python -m maglev_cosim.plant.model_description",
+                                 description="Writes the model description of a compiled FMU binary's C variable table.")
+    ap.add_argument("--pid", action="store_true", help="the controller FMU's table (maglev_pid.so)")
+    ap.add_argument("--fmi", type=int, choices=(2, 3), default=2, help="FMI version (default 2)")
+    ap.add_argument("--c", metavar="DIR", help="the folder of the C sources (default: the installed ones); the "
+                                                "build uses the repository's c/")
+    ap.add_argument("library", help="PATH/TO/maglev.so (or maglev_pid.so)")
+    ap.add_argument("out", nargs="?", default="modelDescription.xml", help="default: modelDescription.xml here")
+    args = ap.parse_args(argv)
+    ident = pid_identity(args.fmi) if args.pid else plant_identity(args.fmi)
     ident = Identity(**{**ident.__dict__, "generation_date": _date_from_environment()})
-    table = read_pid_table(args[0]) if pid else read_table(args[0])
-    target.write_text(generate(table, ident, fmi_version))
+    table = read_pid_table(args.library, c=args.c) if args.pid else read_table(args.library, c=args.c)
+    target = Path(args.out)
+    target.write_text(generate(table, ident, args.fmi))
     print(f"wrote {target}")
     return 0
 

@@ -1,6 +1,6 @@
 """What the two emulators (:mod:`maglev_cosim.records.emulator` and :mod:`maglev_cosim.records.emulator_ivp`) share
-that is not physics: the check of a synthetic record's settings, and the truth sidecar's
-figures of the coil current. Imports nothing of the package, so the independent emulator stays
+that is not physics: the position references a synthetic record follows, the check of a synthetic
+record's settings, and the truth sidecar's figures of the coil current. Imports nothing of the package, so the independent emulator stays
 apart from the model (``tests/test_emulator_ivp.py``)."""
 
 from __future__ import annotations
@@ -61,3 +61,40 @@ def current_truth(i: np.ndarray, limited: np.ndarray) -> dict:
     share of the samples in which the amplifier is at its limit ``i_max``."""
     return {"current_percentiles": np.percentile(i, np.arange(101)).tolist(),
             "i_limited_share": float(np.mean(limited))}
+
+
+#: The position references a synthetic record may follow (:func:`reference_positions`).
+REFERENCE_KINDS = ("square", "sine", "steps", "chirp")
+
+
+def reference_positions(kind: str, duration: float, ts: float, rng: np.random.Generator,
+                        period: float | None = None) -> np.ndarray:
+    """A position reference [m] sampled every ``ts`` over ``duration`` [s]: ``square`` (3.0 ↔ 3.5 mm,
+    period 3 s as the paper's Sec. 5, or ``period`` [s]), ``sine`` (3.2 mm ± 0.6 mm, period 4 s or
+    ``period``), ``steps`` (a random staircase across 2.0–4.5 mm, steps of 0.15–0.5 mm held 0.6–1.4 s,
+    drawn from ``rng``: the most informative), ``chirp`` (3.2 mm ± 0.25 mm, 0.1 → 5 Hz). Each emulator
+    turns it into readings with its own sensor."""
+    if period is not None and not (period > 0 and kind in ("square", "sine")):
+        raise ValueError(f"a period (here {period!r}) is given to a square or a sine reference, and it is > 0 s")
+    if kind not in REFERENCE_KINDS:
+        raise ValueError(f"unknown reference {kind!r}: choose square, sine, steps or chirp")
+    n = int(round(duration / ts))
+    t = np.arange(n) * ts
+    if kind == "square":
+        return np.where(np.floor(t / ((period or 3.0) / 2)).astype(int) % 2 == 0, 3.0e-3, 3.5e-3)
+    if kind == "sine":
+        return 3.2e-3 + 0.6e-3 * np.sin(2 * np.pi * t / (period or 4.0))
+    if kind == "chirp":
+        f0, f1 = 0.1, 5.0
+        return 3.2e-3 + 0.25e-3 * np.sin(2 * np.pi * (f0 * t + (f1 - f0) * t**2 / (2 * duration)))
+    x = np.empty(n)
+    level, k = 3.2e-3, 0
+    while k < n:
+        length = int(rng.uniform(0.6, 1.4) / ts)
+        x[k:k + length] = level
+        k += length
+        delta = rng.uniform(0.15e-3, 0.5e-3) * rng.choice([-1.0, 1.0])
+        if not 2.0e-3 <= level + delta <= 4.5e-3:
+            delta = -delta
+        level += delta
+    return x

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from ..plant.params import EFFECT_PARAMS
-from .emulation import emulated_effects
+from .emulation import emulated_effects, reference_positions
 
 LSB = 1.0 / 2048.0       # [MU] the default 12-bit converter over ±1 MU (RigConfig.bits)
 
@@ -124,36 +124,10 @@ def _position_for(cfg: RigConfig, y: float) -> float:
 
 def reference(kind: str, duration: float, ts: float = 1e-3, seed: int = 0, cfg: RigConfig | None = None,
               period: float | None = None) -> np.ndarray:
-    """A position reference [MU]: ``square`` (3.0 ↔ 3.5 mm, period 3 s as Sec. 5, or ``period``
-    [s]), ``sine`` (3.2 mm ± 0.6 mm at 0.25 Hz, or one cycle per ``period``), ``steps`` (random staircase across 2.0–4.5 mm, steps of 0.15–0.5 mm every
-    0.6–1.4 s: the most informative), ``chirp`` (3.2 mm ± 0.25 mm, 0.1 → 5 Hz)."""
-    cfg = cfg or RigConfig()
-    n = int(round(duration / ts))
-    t = np.arange(n) * ts
-    rng = np.random.default_rng(seed)
-    if period is not None and not (period > 0 and kind in ("square", "sine")):
-        raise ValueError(f"a period (here {period!r}) is given to a square or a sine reference, and it is > 0 s")
-    if kind == "square":
-        x = np.where(np.floor(t / ((period or 3.0) / 2)).astype(int) % 2 == 0, 3.0e-3, 3.5e-3)
-    elif kind == "sine":
-        x = 3.2e-3 + 0.6e-3 * np.sin(2 * np.pi * t / (period or 4.0))
-    elif kind == "steps":
-        x = np.empty(n)
-        level, k = 3.2e-3, 0
-        while k < n:
-            length = int(rng.uniform(0.6, 1.4) / ts)
-            x[k:k + length] = level
-            k += length
-            delta = rng.uniform(0.15e-3, 0.5e-3) * rng.choice([-1.0, 1.0])
-            if not 2.0e-3 <= level + delta <= 4.5e-3:
-                delta = -delta
-            level += delta
-    elif kind == "chirp":
-        f0, f1 = 0.1, 5.0
-        phase = 2 * np.pi * (f0 * t + (f1 - f0) * t**2 / (2 * duration))
-        x = 3.2e-3 + 0.25e-3 * np.sin(phase)
-    else:
-        raise ValueError(f"unknown reference {kind!r}: choose square, sine, steps or chirp")
+    """A position reference [MU] of :func:`maglev_cosim.records.emulation.reference_positions` (``square``,
+    ``sine``, ``steps``, ``chirp``; ``steps`` drawn with ``seed``), read by the nominal sensor. ``cfg`` is
+    accepted for the callers' convenience and does not change it."""
+    x = reference_positions(kind, duration, ts, np.random.default_rng(seed), period)
     base = RigConfig()          # the reference is defined on the nominal sensor
     return np.asarray(position_to_mu(base, x), dtype=float)
 

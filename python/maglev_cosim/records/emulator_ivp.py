@@ -48,7 +48,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ..plant.params import EFFECT_PARAMS, PARAMETER_SETS
-from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth, emulated_effects
+from .emulation import DISTURBANCE_KEYS, checked_settings, current_truth, emulated_effects, reference_positions
 from .record import write_record
 
 #: The paper's values (Section 3, LQ fit), taken by name; ``T_a`` is an effect here (off by default).
@@ -396,34 +396,10 @@ def simulate(w: np.ndarray, cfg: IvpConfig | None = None, *, ts: float = 1e-3, k
 # --------------------------------------------------------------------------- records
 
 def _reference(kind: str, duration: float, ts: float, seed: int, period: float | None, c: IvpConfig) -> np.ndarray:
-    """A position reference [MU] of the kinds :func:`maglev_cosim.records.synth.synth_record` knows, built
-    here: ``square`` (3.0 ↔ 3.5 mm, period 3 s), ``sine`` (3.2 ± 0.6 mm, period 4 s), ``steps``
-    (a random staircase across 2.0–4.5 mm, steps of 0.15–0.5 mm held 0.6–1.4 s), ``chirp``
-    (3.2 ± 0.25 mm, 0.1 → 5 Hz). Positions are turned into readings by the nominal sensor."""
-    n = int(round(duration / ts))
-    t = np.arange(n) * ts
-    rng = np.random.default_rng([seed, 22])
-    if period is not None and not (period > 0 and kind in ("square", "sine")):
-        raise ValueError(f"a period (here {period!r}) is given to a square or a sine reference, and it is > 0 s")
-    if kind == "square":
-        half = (period or 3.0) / 2
-        x = np.where((t // half).astype(int) % 2 == 0, 3.0e-3, 3.5e-3)
-    elif kind == "sine":
-        x = 3.2e-3 + 0.6e-3 * np.sin(2 * np.pi * t / (period or 4.0))
-    elif kind == "steps":
-        x = np.empty(n)
-        level, k = 3.2e-3, 0
-        while k < n:
-            hold = int(rng.uniform(0.6, 1.4) / ts)
-            x[k:k + hold] = level
-            k += hold
-            step = rng.uniform(0.15e-3, 0.5e-3) * (1.0 if rng.uniform() < 0.5 else -1.0)
-            level = level + step if 2.0e-3 <= level + step <= 4.5e-3 else level - step
-    elif kind == "chirp":
-        phase = 2 * np.pi * (0.1 * t + (5.0 - 0.1) * t ** 2 / (2 * duration))
-        x = 3.2e-3 + 0.25e-3 * np.sin(phase)
-    else:
-        raise ValueError(f"unknown reference {kind!r}: choose square, sine, steps or chirp")
+    """A position reference [MU]: the positions every synthetic record's reference follows
+    (:func:`maglev_cosim.records.emulation.reference_positions`, a profile, not physics), turned into
+    readings by this emulator's own nominal sensor; its ``steps`` are drawn from this emulator's own stream."""
+    x = reference_positions(kind, duration, ts, np.random.default_rng([seed, 22]), period)
     nominal = IvpConfig()
     return np.asarray(reading_mu(nominal, x), dtype=float)
 
