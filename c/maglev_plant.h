@@ -56,6 +56,8 @@ typedef enum {
     VR_V_min,
     VR_T_y,
     VR_r_y,
+    VR_beta_F,
+    VR_T_F2,
     VR_solver_step,
     VR_F,
     MAGLEV_NVARS
@@ -129,6 +131,7 @@ typedef struct {
     double time;                /* [s] */
     double u;                   /* [MU] input held since the last communication point */
     double x, v, i, F;          /* [m] [m/s] [A] [N] */
+    double F2;                  /* [N] the slow part of the force (eddy_lag: beta_F > 0), else 0 */
     double xs;                  /* [m] the position the sensor sees (x itself unless T_y > 0) */
     int contact;                /* MaglevContact */
     MaglevHistory hist;
