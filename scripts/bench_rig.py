@@ -90,7 +90,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", help="the shared real records (default: $MAGLEV_REAL_DATA or ../shared/data/real)")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench-rig"))
     ap.add_argument("--no-write", action="store_true", help="print the section, leave docs/benchmarks.md alone")
+    ap.add_argument("--second-force-lag", choices=("joint", "after"),
+                    help="fit the second force lag (eddy_lag) too: with the rest or after it (default: "
+                         "real_rig.SECOND_FORCE_LAG_FIT)")
     a = ap.parse_args(argv)
+    if a.second_force_lag:
+        real_rig.SECOND_FORCE_LAG_FIT = a.second_force_lag
     res_dir = _data_dir(a.data) / "inteco-mls2em" / "results"
     cal = [res_dir / f"{n} - KF.mat" for n in CALIBRATION]
     val = [res_dir / f"{n} - KF.mat" for n in VALIDATION]
