@@ -8,6 +8,11 @@ table, the calibrated parameters and disturbance model, and the drift findings. 
 doc are written only by this script.
 
     .venv/bin/python scripts/bench_rig.py [--data ../shared/data/real] [--out out/bench-rig] [--no-write]
+                                          [--second-force-lag joint|after]
+
+``--second-force-lag`` measures the calibration with the second force lag (effect ``eddy_lag``) fitted
+(real_rig.SECOND_FORCE_LAG_FIT; off by default); the section it would write then names the option in
+its command.
 """
 
 from __future__ import annotations
@@ -103,6 +108,8 @@ def main(argv: list[str] | None = None) -> int:
                + " ".join(f'"$I/{n} - KF.mat"' for n in CALIBRATION)
                + "".join(" --validate " + f'"$I/{n} - KF.mat"' for n in VALIDATION)
                + " --rig inteco-mls2em --out out/inteco")
+    if a.second_force_lag:
+        command += f"  # with real_rig.SECOND_FORCE_LAG_FIT = {a.second_force_lag!r} (--second-force-lag)"
     t0 = time.perf_counter()
     res = diagnose(cal, rig="inteco-mls2em", validate=val, out=a.out,
                    progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True)).to_json()
