@@ -58,6 +58,8 @@
     X(V_min, MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "V", "Lowest coil voltage a voltage drive applies (a PWM stage's floor)", "") \
     X(T_y, MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "s", "Time constant of a first-order lag through which the sensor sees the position (0 = off)", "sensor_lag") \
     X(r_y, MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "V/s", "Rate at which the sensor voltage's offset drifts, r_y*t added to Eq. 12 (the sensor electronics warming up; 0 = off)", "sensor_drift") \
+    X(beta_F, MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "1", "Share of the force that follows the static force law through a second, slower lag T_F2 (eddy currents in the core; the ball feels (1 - beta_F)*F_fast + beta_F*F2, F_fast the force lag's output or the static force; 0 = off)", "eddy_lag") \
+    X(T_F2, MAGLEV_PARAMETER, 0.01, T_F_MIN, 1.0, "s", "Time constant of the second force lag F2' = (F_s - F2)/T_F2 (used when beta_F > 0)", "eddy_lag") \
     X(solver_step, MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step", "") \
     X(F, MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8", "")
 #endif
@@ -185,6 +187,9 @@ int maglev_check_plant(const MaglevPlant *m, char *msg, size_t len) {
                     P(m, T_y) > 0 ? "lies outside the stops" : "differs from x without a sensor lag");
     if (P(m, T_F) > 0 ? !(m->F >= 0 && isfinite(m->F)) : m->F != 0)
         return fail(msg, len, "variable F: %g N is not a force the lag can hold", m->F);
+    if (P(m, beta_F) > 0 ? !(m->F2 >= 0 && isfinite(m->F2)) : m->F2 != 0)
+        return fail(msg, len, "variable F2: %g N is not a force the second lag (beta_F = %g) can hold", m->F2,
+                    P(m, beta_F));
     if (m->contact < CONTACT_LOWER || m->contact > CONTACT_UPPER)
         return fail(msg, len, "contact mode %d is invalid", m->contact);
     if (m->contact && (m->v != 0 || m->x != (m->contact == CONTACT_UPPER ? P(m, x_max) : P(m, x_min))))
@@ -281,7 +286,7 @@ static double delayed_input(const MaglevPlant *m, double t) {
 #endif
 
 /* The RK4 state: the current is integrated only with a voltage drive (else it is given). */
-typedef struct { double x, v, F, i; } Mech;
+typedef struct { double x, v, F, i, F2; } Mech;
 
 /* phi_0..phi_4 of the exponential integrators at z <= 0: phi_0 = e^z, phi_(k+1) = (phi_k - 1/k!)/z.
  * Where |z| < 1 that recursion would cancel: phi_4 by its series, then phi_k = z*phi_(k+1) + 1/k!. */
@@ -344,12 +349,13 @@ typedef struct {
     long *work;             /* RK4 evaluations spent in this maglev_step, against the budget */
     MaglevPlant *cache;     /* the same plant: its caches of ETDRK4 and transient weights */
     int exact;              /* the current's transient enters RK4 through transient_squares */
+    double beta;            /* beta_F: the share of the force behind the second lag (0: off) */
 } Piece;
 
 static Piece make_piece(MaglevPlant *m, double i0, double ic, double volts, long *work) {
     Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), P(m, F_c) / P(m, m_k),
                 P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work, m,
-                !voltage_drive(m) && P(m, T_a) > 0 && P(m, T_F) <= 0};
+                !voltage_drive(m) && P(m, T_a) > 0 && P(m, T_F) <= 0, P(m, beta_F)};
     return pc;
 }
 
@@ -362,6 +368,16 @@ HOT Mech deriv(const Piece *pc, double isq, Mech s, int contact) {
     if (pc->voltage) {
         d.i = coil_rate(m, pc->volts, s.i, s.x, contact ? 0.0 : s.v);
         isq = s.i * s.i;
+    }
+    d.F2 = 0.0;
+    if (pc->beta > 0) { /* effect eddy_lag: a share beta of the force behind the second lag T_F2 */
+        double fs = force_gain(m, s.x) * isq, fast = P(m, T_F) > 0 ? s.F : fs;
+        d.F = P(m, T_F) > 0 ? fs / P(m, T_F) : 0.0; /* the fast lag's input, as below */
+        d.F2 = (fs - s.F2) / P(m, T_F2);
+        d.x = contact ? 0.0 : s.v;
+        d.v = contact ? 0.0 : ((1.0 - pc->beta) * fast + pc->beta * s.F2) / P(m, m_k) - pc->kfv_m * s.v - P(m, g);
+        if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
+        return d;
     }
     if (P(m, T_F) > 0) { /* d.F: the lag's input F_s/T_F (its linear part -F/T_F is the ETD's) */
         d.F = force_gain(m, s.x) * isq / P(m, T_F);
@@ -385,7 +401,7 @@ HOT Mech deriv(const Piece *pc, double isq, Mech s, int contact) {
 }
 
 HOT Mech axpy(Mech s, double a, Mech d) {
-    Mech r = {s.x + a * d.x, s.v + a * d.v, s.F + a * d.F, s.i + a * d.i};
+    Mech r = {s.x + a * d.x, s.v + a * d.v, s.F + a * d.F, s.i + a * d.i, s.F2 + a * d.F2};
     return r;
 }
 
@@ -400,6 +416,7 @@ HOT Mech rk4_plain(const Piece *pc, Mech s, double h, int contact, double qa, do
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
     r.F = s.F;
     r.i = s.i;
+    r.F2 = pc->beta > 0 ? s.F2 + h / 6 * (k1.F2 + 2 * k2.F2 + 2 * k3.F2 + k4.F2) : s.F2;
     if (pc->voltage) r.i = clip(s.i + h / 6 * (k1.i + 2 * k2.i + 2 * k3.i + k4.i), 0.0, P(pc->m, i_max));
     return r;
 }
@@ -422,6 +439,7 @@ static Mech rk4_etd(const Piece *pc, Mech s, double h, int contact, double qa, d
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
     r.F = c->e * s.F + c->f1 * k1.F + c->f2 * (k2.F + k3.F) + c->f3 * k4.F;
     r.i = s.i;
+    r.F2 = pc->beta > 0 ? s.F2 + h / 6 * (k1.F2 + 2 * k2.F2 + 2 * k3.F2 + k4.F2) : s.F2;
     if (pc->voltage) r.i = clip(s.i + h / 6 * (k1.i + 2 * k2.i + 2 * k3.i + k4.i), 0.0, P(pc->m, i_max));
     return r;
 }
@@ -449,8 +467,8 @@ static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
 
 static double force_now(const Piece *pc, double tau, Mech s) {
     const MaglevPlant *m = pc->m;
-    if (P(m, T_F) > 0) return s.F;
-    return static_force(m, pc->voltage ? s.i : current_at(m, pc->i0, pc->ic, tau), s.x);
+    double fast = P(m, T_F) > 0 ? s.F : static_force(m, pc->voltage ? s.i : current_at(m, pc->i0, pc->ic, tau), s.x);
+    return pc->beta > 0 ? (1.0 - pc->beta) * fast + pc->beta * s.F2 : fast;
 }
 
 /* Net force pressing the ball onto the stop it touches (>= 0: stays). */
@@ -541,8 +559,13 @@ static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h
 static int stays_on_stop(const Piece *pc, Mech s, int contact, double i_now) {
     const MaglevPlant *m = pc->m;
     if (!contact || s.v != 0.0 || pc->voltage) return 0; /* a voltage drive's current has no closed form */
-    if (P(m, T_F) > 0 && fabs(i_now - pc->ic) > FF_CURRENT_EPS) return 0;
+    if ((P(m, T_F) > 0 || pc->beta > 0) && fabs(i_now - pc->ic) > FF_CURRENT_EPS) return 0;
     double w = P(m, m_k) * P(m, g), sign = contact == CONTACT_UPPER ? 1.0 : -1.0;
+    if (pc->beta > 0) { /* each lag's output stays between its value now and the static force: the worst mix */
+        double fs = static_force(m, pc->ic, s.x), fast = P(m, T_F) > 0 ? s.F : static_force(m, i_now, s.x);
+        double lo_fast = sign > 0 ? fmin(fast, fs) : fmax(fast, fs), lo_slow = sign > 0 ? fmin(s.F2, fs) : fmax(s.F2, fs);
+        return sign * ((1.0 - pc->beta) * lo_fast + pc->beta * lo_slow - w) >= 0;
+    }
     if (sign * (static_force(m, pc->ic, s.x) - w) < 0) return 0;
     if (P(m, T_F) > 0) return sign * (s.F - w) >= 0;
     return sign * (static_force(m, i_now, s.x) - w) >= 0;
@@ -614,12 +637,18 @@ COLD void transient_impulse(const MaglevPlant *m, const Piece *pc, Mech *s, int 
     double I = (2 * ic * d + d * d / 2) * T;
     double r = 1.0 / T - 1.0 / P(m, T_F), J = 2 * ic * d / r + d * d / (r + 1.0 / T);
     s->F += g / P(m, T_F) * J;
+    if (pc->beta > 0) { /* the second lag takes its share the same way; v what neither holds */
+        double r2 = 1.0 / T - 1.0 / P(m, T_F2), J2 = 2 * ic * d / r2 + d * d / (r2 + 1.0 / T);
+        s->F2 += g / P(m, T_F2) * J2;
+        if (!contact) s->v += g / P(m, m_k) * ((1.0 - pc->beta) * (I - J) + pc->beta * (I - J2));
+        return;
+    }
     if (!contact) s->v += g / P(m, m_k) * (I - J);
 }
 
 /* What sets the length of the RK4 substeps: a step refused for its work budget names it, since a shorter
  * solver_step does not help where one of the others sets it. */
-typedef enum { BY_SOLVER_STEP, BY_FORCE_LAG, BY_FRICTION, BY_VOLTAGE_DRIVE, BY_AMPLIFIER_LAG, BY_COUNT } SetBy;
+typedef enum { BY_SOLVER_STEP, BY_FORCE_LAG, BY_FRICTION, BY_VOLTAGE_DRIVE, BY_AMPLIFIER_LAG, BY_EDDY_LAG, BY_COUNT } SetBy;
 
 /* The longest substep the parameters allow, and what sets it. */
 static double substep_max(const MaglevPlant *m, SetBy *by) {
@@ -630,6 +659,11 @@ static double substep_max(const MaglevPlant *m, SetBy *by) {
     if (P(m, T_F) > 0 && 2 * P(m, T_F) < h) {
         h = 2 * P(m, T_F);
         *by = BY_FORCE_LAG;
+    }
+    /* the second force lag is integrated by the classic RK4: h <= T_F2/2 keeps it stable and accurate */
+    if (P(m, beta_F) > 0 && P(m, T_F2) / 2 < h) {
+        h = P(m, T_F2) / 2;
+        *by = BY_EDDY_LAG;
     }
     /* the smoothed friction's slope F_c/(m_k*v_c) is a fast rate near v = 0: keep RK4's h*rate <= 0.1 */
     if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c) < h) {
@@ -662,13 +696,14 @@ typedef struct {
 static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work, Plan *plan) {
     enum { MAX_PARTS = 12 };
     Piece pc = make_piece(m, m->i, current_command(m, u_eff), coil_volts(m, u_eff), work);
-    Mech s = {m->x, m->v, m->F, m->i};
+    Mech s = {m->x, m->v, m->F, m->i, m->F2};
     SetBy by;
     double hmax = substep_max(m, &by);
     double bounds[MAX_PARTS], hs[MAX_PARTS], tau = 0.0, di = fabs(pc.i0 - pc.ic), i_start = pc.i0;
     int nparts = 0;
     if (!pc.voltage && P(m, T_a) > 0 && P(m, T_F) > 0 && di > TRANSIENT_EPS &&
-        IMPULSE_RATIO * P(m, T_a) <= hmax && IMPULSE_RATIO * P(m, T_a) <= P(m, T_F)) {
+        IMPULSE_RATIO * P(m, T_a) <= hmax && IMPULSE_RATIO * P(m, T_a) <= P(m, T_F) &&
+        (pc.beta <= 0 || IMPULSE_RATIO * P(m, T_a) <= P(m, T_F2))) {
         /* resolving it would cost ~45 substeps a step, which a fit of T_a towards 0 pays on every replay */
         transient_impulse(m, &pc, &s, m->contact);
         pc.i0 = pc.ic;
@@ -771,11 +806,16 @@ static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work,
         double Fs = static_force(m, pc.ic, s.x);
         s.F = Fs + (s.F - Fs) * exp(-(len - tau) / P(m, T_F));
     }
+    if (resting && pc.beta > 0) {
+        double Fs = static_force(m, pc.ic, s.x);
+        s.F2 = Fs + (s.F2 - Fs) * exp(-(len - tau) / P(m, T_F2));
+    }
     if (resting && Ty > 0) xs = s.x + (xs - s.x) * exp(-(len - tau) / Ty);
     m->x = s.x;
     m->xs = Ty > 0 ? xs : s.x;
     m->v = s.v;
     m->F = P(m, T_F) > 0 ? s.F : 0.0;
+    m->F2 = pc.beta > 0 ? s.F2 : 0.0;
     m->i = pc.voltage ? s.i : i_end;
     return 0;
 }
@@ -889,11 +929,12 @@ static int start_state(MaglevPlant *m, double t0, double u0, char *msg, size_t l
     m->v = P(m, v_start);
     m->i = (P(m, T_a) > 0 || voltage_drive(m)) ? P(m, i_start) : current_command(m, u0);
     m->F = P(m, T_F) > 0 ? static_force(m, m->i, m->x) : 0.0;
+    m->F2 = P(m, beta_F) > 0 ? static_force(m, m->i, m->x) : 0.0;
     m->xs = m->x; /* the sensor has settled on the start position */
     m->contact = CONTACT_NONE;
     long work = 0;
     Piece pc = make_piece(m, m->i, m->i, coil_volts(m, u0), &work);
-    Mech s = {m->x, m->v, m->F, m->i};
+    Mech s = {m->x, m->v, m->F, m->i, m->F2};
     if (m->x >= P(m, x_max) && (m->v > 0 || (m->v == 0 && press(&pc, 0, s, CONTACT_UPPER) >= 0))) {
         m->contact = CONTACT_UPPER;
         m->v = 0;
@@ -959,6 +1000,10 @@ static void budget_message(const MaglevPlant *m, double h, const Plan *plan, cha
     case BY_FORCE_LAG:
         snprintf(what, sizeof what, "the force lag T_F = %g s sets their length to 2*T_F", P(m, T_F));
         break;
+    case BY_EDDY_LAG:
+        snprintf(what, sizeof what, "the second force lag T_F2 = %g s (beta_F = %g) sets their length to T_F2/2",
+                 P(m, T_F2), P(m, beta_F));
+        break;
     case BY_FRICTION:
         snprintf(what, sizeof what, "the friction F_c = %g N sets their length to 0.1*m_k*v_c/F_c = %g s (m_k = %g kg, "
                  "v_c = 0.1 mm/s)", P(m, F_c), hmax, P(m, m_k));
@@ -1020,7 +1065,8 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
     m->work = work;
     m->time = t_end;
     if (P(m, T_a) <= 0 && !voltage_drive(m)) m->i = current_command(m, delayed_input(m, m->time));
-    if (!isfinite(m->x) || !isfinite(m->xs) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F)) {
+    if (!isfinite(m->x) || !isfinite(m->xs) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F) ||
+        !isfinite(m->F2)) {
         double x = m->x, v = m->v, i = m->i;
         *m = before;
         m->work = work;
@@ -1038,8 +1084,8 @@ double maglev_get(const MaglevPlant *m, MaglevVR vr) {
     case VR_i:
         return (P(m, T_a) > 0 || voltage_drive(m)) ? m->i : current_command(m, delayed_input(m, m->time));
     case VR_F: {
-        if (P(m, T_F) > 0) return m->F;
-        return static_force(m, maglev_get(m, VR_i), m->x);
+        double fast = P(m, T_F) > 0 ? m->F : static_force(m, maglev_get(m, VR_i), m->x);
+        return P(m, beta_F) > 0 ? (1.0 - P(m, beta_F)) * fast + P(m, beta_F) * m->F2 : fast;
     }
     case VR_y: return clip(maglev_reading(m, m->xs, m->time), -MU_LIMIT, MU_LIMIT); /* Eq. 13 */
     default:
@@ -1076,12 +1122,13 @@ int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator 
 }
 
 /* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, u32 tag code, i32 initialized, doubles
- * (params, time, u, x, v, i, F, xs, the tag's values), i32 contact, u32 tag flags, hist pairs, u64 FNV-1a
+ * (params, time, u, x, v, i, F, xs, F2, the tag's values), i32 contact, u32 tag flags, hist pairs, u64 FNV-1a
  * of all before. Version 4 added the tag's values and flags (the FMU's experiment): an image of version 3
- * lacks them, and is refused by its version rather than misread. */
+ * lacks them, and is refused by its version rather than misread. Version 5 added the second force lag's
+ * state F2 (after xs) and its two parameters. */
 #define SER_MAGIC "MGLV"
-#define SER_VERSION 4u
-#define SER_NSTATE 7
+#define SER_VERSION 5u
+#define SER_NSTATE 8
 
 static size_t ser_header(void) { return 4 + 4 + 4 + 8 + 4 + 4; }
 
@@ -1113,7 +1160,7 @@ void maglev_serialize(const MaglevPlant *m, const MaglevTag *tag, unsigned char 
     unsigned int version = SER_VERSION, np = MAGLEV_NPARAMS;
     unsigned long long hl = m->hist.len;
     int contact = m->contact, initialized = m->initialized;
-    double st[SER_NSTATE] = {m->time, m->u, m->x, m->v, m->i, m->F, m->xs};
+    double st[SER_NSTATE] = {m->time, m->u, m->x, m->v, m->i, m->F, m->xs, m->F2};
     b = put(b, SER_MAGIC, 4);
     b = put(b, &version, 4);
     b = put(b, &np, 4);
@@ -1166,7 +1213,7 @@ int maglev_deserialize(MaglevPlant *m, MaglevTag *tag, const unsigned char *buf,
     b = get(b, &tmp.contact, 4);
     b = get(b, &tg_read.flags, 4);
     tg_read.code = tg;
-    tmp.time = st[0]; tmp.u = st[1]; tmp.x = st[2]; tmp.v = st[3]; tmp.i = st[4]; tmp.F = st[5]; tmp.xs = st[6];
+    tmp.time = st[0]; tmp.u = st[1]; tmp.x = st[2]; tmp.v = st[3]; tmp.i = st[4]; tmp.F = st[5]; tmp.xs = st[6]; tmp.F2 = st[7];
     tmp.initialized = initialized;
     tmp.hist.len = 0;
     if (hl) {

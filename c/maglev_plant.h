@@ -86,6 +86,7 @@ typedef struct {
     double time;                /* [s] */
     double u;                   /* [MU] input held since the last communication point */
     double x, v, i, F;          /* [m] [m/s] [A] [N] */
+    double F2;                  /* [N] the slow part of the force (eddy_lag: beta_F > 0), else 0 */
     double xs;                  /* [m] the position the sensor sees (x itself unless T_y > 0) */
     int contact;                /* MaglevContact */
     MaglevHistory hist;

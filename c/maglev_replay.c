@@ -261,7 +261,8 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
 
 /* ---- prediction-error replay: the extended Kalman filter (maglev_replay.h) ---- */
 
-#define NS 7 /* x, v, i, F, d, xs (the position the sensor sees), c (the coloured sensor noise) */
+#define NS 8 /* x, v, i, F, d, xs (the position the sensor sees), c (the coloured sensor noise), F2 (the second
+                force lag's slow part, eddy_lag) */
 #define JAC_EVERY 10
 
 /* P = M P M' */
@@ -289,6 +290,7 @@ static void get_state(const MaglevPlant *m, double d, double c, double s[NS]) {
     s[4] = d;
     s[5] = m->xs;
     s[6] = c;
+    s[7] = m->F2;
 }
 
 /* Puts a filtered state into the plant: the ball between the stops and free (the plant finds an
@@ -303,6 +305,7 @@ static void put_state(MaglevPlant *m, const double s[NS]) {
         m->i = s[2] < 0 ? 0 : (s[2] > imax ? imax : s[2]);
     }
     if (maglev_param(m, VR_T_F) > 0) m->F = s[3];
+    if (maglev_param(m, VR_beta_F) > 0) m->F2 = s[7];
     m->contact = CONTACT_NONE;
 }
 
@@ -517,10 +520,11 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
     const int coloured = f->f_sensor > 0;
     const double b = coloured ? exp(-6.283185307179586 * f->f_sensor * ts) : 0.0;
     const double rc2 = coloured ? f->r_coloured * f->r_coloured : 0.0;
-    const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1, sensor_lag, coloured};
-    const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg, 1e-7, 0};
+    const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1, sensor_lag, coloured,
+                            maglev_param(&m, VR_beta_F) > 0};
+    const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg, 1e-7, 0, 1e-6 * mg};
     /* process noise besides d's and c's own: tiny, to keep the lags' covariance well conditioned */
-    const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0, 1e-16, 0};
+    const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0, 1e-16, 0, 1e-12 * mg * mg};
     double P[NS][NS] = {{0}};
     double dv_dx;
     maglev_sensor_volts(&m, m.x, &dv_dx);
@@ -533,6 +537,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
     P[5][5] = sensor_lag ? P[0][0] : 0;
     P[0][5] = P[5][0] = sensor_lag ? P[0][0] : 0; /* at the start the sensor has settled on x */
     P[6][6] = rc2;
+    P[7][7] = active[7] ? 1e-4 * mg * mg : 0;
     double d = 0.0, c = 0.0, A[NS][NS] = {{0}};
     CtlState cs;
     if (ctl) {

@@ -88,8 +88,9 @@ int maglev_replay_closed_loop_injected(const double *params, const MaglevControl
  * r_sensor, plus, when f_sensor > 0, a coloured part c, a first-order Gauss-Markov process of RMS
  * r_coloured and corner f_sensor (c[k+1] = b*c[k] + w_c[k], b = exp(-2*pi*f_sensor*ts); the reading
  * is the plant's plus c plus the white part), as a sensor whose noise is low-passed before the A/D
- * samples it. The EKF state is (x, v, i, F, d, xs, c); i and F take part only when their lags T_a,
- * T_F are on, xs with a sensor lag, c when f_sensor > 0. f_sensor = 0 (a zeroed field): white sensor
+ * samples it. The EKF state is (x, v, i, F, d, xs, c, F2); i and F take part only when their lags T_a,
+ * T_F are on, xs with a sensor lag, c when f_sensor > 0, F2 with the second force lag (beta_F > 0).
+ * f_sensor = 0 (a zeroed field): white sensor
  * noise only, the filter of before the coloured part. The k-step predictions carry c's expected
  * decay b^j*c into the readings they predict and the controller sees. */
 typedef struct {

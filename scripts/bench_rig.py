@@ -8,6 +8,11 @@ table, the calibrated parameters and disturbance model, and the drift findings. 
 doc are written only by this script.
 
     .venv/bin/python scripts/bench_rig.py [--data ../shared/data/real] [--out out/bench-rig] [--no-write]
+                                          [--second-force-lag joint|after]
+
+``--second-force-lag`` measures the calibration with the second force lag (effect ``eddy_lag``) fitted
+(real_rig.SECOND_FORCE_LAG_FIT; off by default); the section it would write then names the option in
+its command.
 """
 
 from __future__ import annotations
@@ -90,7 +95,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", help="the shared real records (default: $MAGLEV_REAL_DATA or ../shared/data/real)")
     ap.add_argument("--out", default=str(ROOT / "out" / "bench-rig"))
     ap.add_argument("--no-write", action="store_true", help="print the section, leave docs/benchmarks.md alone")
+    ap.add_argument("--second-force-lag", choices=("joint", "after"),
+                    help="fit the second force lag (eddy_lag) too: with the rest or after it (default: "
+                         "real_rig.SECOND_FORCE_LAG_FIT)")
     a = ap.parse_args(argv)
+    if a.second_force_lag:
+        real_rig.SECOND_FORCE_LAG_FIT = a.second_force_lag
     res_dir = _data_dir(a.data) / "inteco-mls2em" / "results"
     cal = [res_dir / f"{n} - KF.mat" for n in CALIBRATION]
     val = [res_dir / f"{n} - KF.mat" for n in VALIDATION]
@@ -98,6 +108,8 @@ def main(argv: list[str] | None = None) -> int:
                + " ".join(f'"$I/{n} - KF.mat"' for n in CALIBRATION)
                + "".join(" --validate " + f'"$I/{n} - KF.mat"' for n in VALIDATION)
                + " --rig inteco-mls2em --out out/inteco")
+    if a.second_force_lag:
+        command += f"  # with real_rig.SECOND_FORCE_LAG_FIT = {a.second_force_lag!r} (--second-force-lag)"
     t0 = time.perf_counter()
     res = diagnose(cal, rig="inteco-mls2em", validate=val, out=a.out,
                    progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True)).to_json()

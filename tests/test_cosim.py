@@ -147,6 +147,8 @@ _EFFECT_CASES = [
     {"u_dz": 1.2},
     {"T_y": 2e-3},
     {"T_y": 1e-3, "T_a": 1e-3, "T_d": 1e-3},
+    {"beta_F": 0.6, "T_F2": 0.015, "T_F": 1e-3},    # the second force lag beside the first (ETDRK4's stages)
+    {"beta_F": 0.5, "T_F2": 5e-3, "T_a": 3e-4},     # without the first: RK4 with transient_squares' weights
 ]
 _EFFECT_CASES += [dict(e.example) for e in CATALOGUE.values()
                   if not set(e.params) & {p for case in _EFFECT_CASES for p in case}]

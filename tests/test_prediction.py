@@ -35,7 +35,8 @@ def _clean_record(params: dict[str, float], n: int = 3000) -> Record:
     return Record("clean", t, w, sim["u"], sim["y"], 1e-3, 2.0, 2.97, 0.01, 0.0, 1.0)
 
 
-@pytest.mark.parametrize("extra", [{}, {"T_a": 3e-3}, {"T_d": 2.5e-3, "T_F": 1e-3}, {"T_y": 2e-3}])
+@pytest.mark.parametrize("extra", [{}, {"T_a": 3e-3}, {"T_d": 2.5e-3, "T_F": 1e-3}, {"T_y": 2e-3},
+                                   {"beta_F": 0.6, "T_F2": 0.015, "T_F": 1e-3}])
 def test_predictions_of_an_exact_model_are_exact(extra):
     """With the plant's own noise-free record the k-step predictions equal the record: the
     filter's bookkeeping (sample order, PID state, delay line, lags) matches the free run."""

@@ -96,6 +96,8 @@ static void test_bad_values(void) {
         {VR_T_F, -1.0, "T_F"},      {VR_g, 0.0, "g"},
         {VR_F_c, -1e-3, "F_c"},     {VR_n_F, 5.0, "n_F"},      {VR_n_F, 0.5, "n_F"},
         {VR_u_dz, -0.1, "u_dz"},    {VR_x_n, 2.0, "x_n"},
+        {VR_beta_F, -0.1, "beta_F"}, {VR_beta_F, 1.5, "beta_F"}, {VR_beta_F, NAN, "beta_F"},
+        {VR_T_F2, 0.0, "T_F2"},     {VR_T_F2, 2.0, "T_F2"},
     };
     for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
         fmi2ValueReference vr = bad[k].vr;
@@ -577,6 +579,40 @@ static void test_new_effects(void) {
     CHECK(fabs(x_eff - x_base) > 1e-7, "n_F = 3 changes nothing: %g vs %g", x_eff, x_base);
     levitate_with(VR_u_dz, 0.2, &x_eff);
     CHECK(x_eff < x_base - 1e-6, "a dead zone does not lower the current: %g vs %g", x_eff, x_base);
+    /* the second force lag (eddy_lag): off at beta_F = 0 whatever T_F2, and a share of the force that
+     * follows the kick late slows the rising ball */
+    CHECK(levitate_with(VR_beta_F, 0.0, &x_eff) == y_base && x_eff == x_base, "beta_F = 0 changes the response");
+    CHECK(levitate_with(VR_T_F2, 0.5, &x_eff) == y_base && x_eff == x_base, "T_F2 alone changes the response");
+    levitate_with(VR_beta_F, 0.6, &x_eff);
+    CHECK(x_eff < x_base - 1e-7, "a slow force share does not slow the rising ball: %g vs %g", x_eff, x_base);
+    {   /* its state F2 goes through the serialized image: a restored plant steps on as the original */
+        char msg[MAGLEV_MSG_LEN] = "";
+        MaglevPlant a, b;
+        maglev_defaults(&a);
+        maglev_defaults(&b);
+        double x = 0.0032, i = (8.3e-3 - x) * sqrt(8.4e-3 * 9.81 / 6.9e-6);
+        maglev_set_param(&a, VR_x_start, x);
+        maglev_set_param(&a, VR_beta_F, 0.6);
+        maglev_set_param(&a, VR_T_F2, 0.015);
+        maglev_set_param(&a, VR_T_F, 1e-3);
+        CHECK(maglev_initialize(&a, 0.0, i / 1.5 * 1.02, &maglev_std_allocator, msg, sizeof msg) == 0, "init: %s", msg);
+        CHECK(maglev_step(&a, 5e-3, &maglev_std_allocator, msg, sizeof msg) == 0, "step: %s", msg);
+        CHECK(a.F2 > 0 && a.F2 != maglev_force(&a, maglev_get(&a, VR_i), a.x, NULL, NULL), "F2 = %g not lagging", a.F2);
+        MaglevTag tag = {0, 0, {0, 0, 0}};
+        size_t n = maglev_serialized_size(&a);
+        unsigned char *buf = malloc(n);
+        maglev_serialize(&a, &tag, buf);
+        CHECK(maglev_deserialize(&b, &tag, buf, n, &maglev_std_allocator, msg, sizeof msg) == 0, "restore: %s", msg);
+        CHECK(b.F2 == a.F2, "F2 restored as %g, was %g", b.F2, a.F2);
+        maglev_step(&a, 5e-3, &maglev_std_allocator, msg, sizeof msg);
+        maglev_step(&b, 5e-3, &maglev_std_allocator, msg, sizeof msg);
+        CHECK(a.x == b.x && a.F2 == b.F2, "restored plant differs: x %g vs %g", b.x, a.x);
+        b.F2 = -1.0; /* a negative slow force is no state the plant can have */
+        CHECK(maglev_check_plant(&b, msg, sizeof msg) != 0 && strstr(msg, "variable F2"), "F2 < 0 accepted: %s", msg);
+        free(buf);
+        maglev_release(&a, &maglev_std_allocator);
+        maglev_release(&b, &maglev_std_allocator);
+    }
     /* lags far below a substep, down to denormals (h/T overflows to inf: fuzz seed 3978), are no lag */
     const MaglevVR lags[] = {VR_T_y, VR_T_a};
     const double tiny[] = {1e-300, 4.9e-324};
@@ -672,17 +708,18 @@ static void test_deserialize_checks_values(void) {
     fmi2SerializedFMUstateSize(c, s, &size);
     fmi2Byte *buf = malloc(size), *bad = malloc(size);
     fmi2SerializeFMUstate(c, s, buf, size);
-    /* layout (maglev_plant.c): 28-byte header, the parameters, then time, u, x, v, i, F, xs, the experiment
+    /* layout (maglev_plant.c): 28-byte header, the parameters, then time, u, x, v, i, F, xs, F2, the experiment
      * (startTime, stopTime, tolerance; neither of the last two defined here), contact, the experiment's flags */
-    size_t state_at = 28 + 8 * (size_t)MAGLEV_NPARAMS, flags_at = state_at + 10 * 8 + 4;
+    size_t state_at = 28 + 8 * (size_t)MAGLEV_NPARAMS, flags_at = state_at + 11 * 8 + 4;
     struct { size_t at; double value; const char *what; } cases[] = {
         {state_at + 2 * 8, 8.3e-3, "x = x_0"},   {state_at + 2 * 8, -5.0, "x = -5 m"},
         {state_at + 4 * 8, -1.0, "i = -1 A"},    {state_at + 4 * 8, 2.0, "i above i_max"},
         {state_at + 3 * 8, NAN, "v = NaN"},      {state_at + 0 * 8, 1e300, "time = 1e300 s"},
         {28 + 8 * (size_t)(VR_x_max - MAGLEV_FIRST_PARAM), 9e-3, "x_max above x_0"},
         {28 + 8 * (size_t)(VR_m_k - MAGLEV_FIRST_PARAM), -1.0, "m_k < 0"},
-        {state_at + 7 * 8, NAN, "startTime NaN"}, {state_at + 7 * 8, 2e9, "startTime 2e9 s"},
-        {state_at + 8 * 8, 1.0, "an undefined stopTime of 1 s"}, {state_at + 9 * 8, 1e-6, "an undefined tolerance"},
+        {state_at + 7 * 8, 0.5, "F2 = 0.5 N without the second force lag"},
+        {state_at + 8 * 8, NAN, "startTime NaN"}, {state_at + 8 * 8, 2e9, "startTime 2e9 s"},
+        {state_at + 9 * 8, 1.0, "an undefined stopTime of 1 s"}, {state_at + 10 * 8, 1e-6, "an undefined tolerance"},
         {flags_at, 0.0, "flags: tolerance 0 defined"}, {flags_at, 0.0, "flags: unknown bit"},
     };
     for (size_t k = 0; k < sizeof cases / sizeof cases[0]; k++) {
@@ -699,7 +736,7 @@ static void test_deserialize_checks_values(void) {
         last_log[0] = 0;
         CHECK(fmi2DeSerializeFMUstate(c, bad, size, &r) == fmi2Error && r == NULL, "%s accepted", cases[k].what);
         CHECK(logged("cannot have"), "%s: %s", cases[k].what, last_log);
-        CHECK(cases[k].at < state_at + 7 * 8 || logged("experiment"), "%s: %s", cases[k].what, last_log);
+        CHECK(cases[k].at < state_at + 8 * 8 || logged("experiment"), "%s: %s", cases[k].what, last_log);
     }
     /* the untouched buffer, its checksum recomputed, still restores: the test edits only values */
     memcpy(bad, buf, size);

@@ -504,6 +504,27 @@ class SensorDrift(Effect):
         return [[v] for v in (-0.03, -0.01, -0.003, 0.003, 0.01, 0.03)]
 
 
+class EddyLag(Effect):
+    """A second, slower lag of the force: a share ``beta_F`` of it follows the static law through
+    ``T_F2`` (eddy currents in a solid core spread over time constants; one lag alone is a compromise
+    between the fast and the slow ones). The ball feels ``(1 - beta_F)*F_fast + beta_F*F2``."""
+
+    name = "eddy_lag"
+    description = ("a share beta_F of the magnetic force following the static law through a second, slower lag "
+                   "T_F2 (eddy currents in the core)")
+    location = "mechanics"
+    example = {"beta_F": 0.5, "T_F2": 0.015}
+    tolerance: Mapping[str, float] = {}   # not yet benchmarked by the diagnosis of synthetic records
+    coords = (Coord("beta_F", 0.1, 0.0, 0.95), Coord("T_F2", 1e-2, 1e-3, 0.1))
+
+    def is_off(self, values: Mapping[str, float]) -> bool:
+        """A share below 1 % of the force."""
+        return values["beta_F"] < 0.01
+
+    def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        return [[b, t] for b in (0.2, 0.5) for t in (5e-3, 1.5e-2, 5e-2)]
+
+
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     _TimeConstant("amplifier_lag", 0.0, "actuator", "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5",
                   0.003, 0.10),
@@ -521,6 +542,7 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     ForceExponent(),
     AmplifierDeadZone(),
     SensorDrift(),
+    EddyLag(),
 )}
 
 
@@ -567,8 +589,12 @@ _check_catalogue()
 #: - ``sensor_drift``: opt-in until the acceptance benchmark's no-effect records have been run with it
 #:   (``scripts/diagnosis_matrix.py --family 40 --also sensor_drift``): the family's drifting force
 #:   offset is a slow trend too.
+#: - ``eddy_lag``: opt-in as a new entry (docs/adding-an-effect.md) until the acceptance benchmark's
+#:   no-effect records have been run with it; fitted on real rigs by their calibration
+#:   (:mod:`maglev_cosim.diagnosis.real_rig`).
 DEFAULT_EFFECTS: tuple[str, ...] = tuple(e for e in CATALOGUE
-                                         if e not in ("sensor_lag", "amplifier_dead_zone", "sensor_drift"))
+                                         if e not in ("sensor_lag", "amplifier_dead_zone", "sensor_drift",
+                                                      "eddy_lag"))
 
 #: Pairs of effects with the same transfer function from u to y (what tells them apart, if anything).
 TWINS: dict[frozenset[str], str] = {

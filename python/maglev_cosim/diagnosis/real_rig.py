@@ -332,17 +332,19 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     nz0 = dict(noise or noise_defaults(rig, p0))
     base = np.array([getattr(p0, n) for n in names])
     additive = np.array([n in ("u_0", "x_0") for n in names])
-    effect_bound = {e[1]: e[4][1] for e in RIG_EFFECTS}
+    effect_bound = {e[1]: e[4][1] for e in RIG_EFFECTS} | {n: b[1] for n, b in SECOND_FORCE_LAG.items()}
+    effect_lo = {n: b[0] for n, b in SECOND_FORCE_LAG.items()}
     # an effect parameter is searched over its catalogue range (not by factors of its start: a lag
     # found at 1 ms by the effect search may belong at 3 ms once the rest moves with it)
     absolute = np.array([n in effect_bound for n in names])
     free = NOISE if fit_noise else ()
-    lo = np.concatenate([np.where(additive, -1.0, np.where(absolute, 0.0, 0.5)), np.full(len(free), -4.0)])
+    lo = np.concatenate([np.where(additive, -1.0, np.where(absolute, [effect_lo.get(n, 0.0) for n in names], 0.5)),
+                         np.full(len(free), -4.0)])
     hi = np.concatenate([np.where(additive, 1.0, np.where(absolute, [effect_bound.get(n, 1.0) for n in names], 2.0)),
                          np.full(len(free), 4.0)])
     # an effect parameter that is off starts inside its range (the middle of its catalogue grid):
     # on its lower bound the fit would start where a lag's switch-on makes the cost jump
-    effect_start = {e[1]: e[3][len(e[3]) // 2] for e in RIG_EFFECTS}
+    effect_start = {e[1]: e[3][len(e[3]) // 2] for e in RIG_EFFECTS} | {n: b[2] for n, b in SECOND_FORCE_LAG.items()}
     z0 = np.concatenate([np.where(additive, 0.0, np.where(absolute, [b if b > 0 else effect_start.get(n, 0.0)
                                                                       for n, b in zip(names, base)], 1.0)),
                          np.zeros(len(free))])
@@ -505,6 +507,17 @@ RIG_EFFECTS = (
     ("delay", "T_d", "actuator", (2.5e-4, 5e-4, 1e-3, 2e-3, 4e-3), (0.0, 0.02)),
     ("damping", "k_FV", "mechanics", (0.02, 0.1, 0.3, 1.0, 3.0), (0.0, 10.0)),
 )
+#: The second force lag (the catalogue's ``eddy_lag``): a share ``beta_F`` of the force behind a slower lag
+#: ``T_F2``, as eddy currents in a solid core give it beside the fast lag ``T_F`` (their time constants
+#: spread; one lag is a compromise between the fast and the slow ones). Its two parameters are fitted
+#: by :func:`calibrate` (:func:`run`) within these bounds (name: (lower, upper, start)); a share fitted
+#: to 0 leaves it off.
+SECOND_FORCE_LAG = {"beta_F": (0.0, 0.95, 0.3), "T_F2": (1e-3, 0.1, 0.01)}
+#: How :func:`run` fits the second force lag: None (not at all: the model of before), "joint" (with the
+#: force law, the selected effects and the disturbance model, in their refit) or "after" (after that
+#: refit, with the disturbance model, the rest held). Off by default: on the shared Inteco records
+#: neither raised the validation records' skill (docs/rigs.md, the lift-off error's candidates).
+SECOND_FORCE_LAG_FIT: str | None = None
 #: Held-out blocks [s]: the effect is fitted on the even blocks' predictions, judged on the odd ones.
 EFFECT_BLOCK_S = 1.0
 #: Relative reduction of the held-out prediction cost an effect must bring to be selected.
@@ -1225,7 +1238,7 @@ def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams
 
 def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Sequence[Measured] = (),
         per_record: bool = True, progress=None, json_name: str = "diagnosis.json", controller=None,
-        effects: bool = True) -> dict:
+        effects: bool = True, second_force_lag: str | None = "default") -> dict:
     """The real-rig path's stages (:func:`maglev_cosim.diagnosis.diagnose` runs them): calibrates one
     parameter set on ``records`` (all their levitation segments), reports every record's figures
     before and after, each record's own calibration (the spread between records: drift is a
@@ -1235,7 +1248,12 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     cut into segments and checked before anything is written. ``controller``: a declared controller
     (:class:`maglev_cosim.loop.controllers.ControllerFile`), checked against each record and replayed
     in closed loop (:func:`controller_check`, :func:`closed_loop_figures`). ``effects``: try the
-    catalogue's effects on the calibrated model (:func:`effect_search`)."""
+    catalogue's effects on the calibrated model (:func:`effect_search`); ``second_force_lag``: how the
+    second force lag (:data:`SECOND_FORCE_LAG`) is fitted, None, "joint" or "after" (default
+    :data:`SECOND_FORCE_LAG_FIT`)."""
+    mode = SECOND_FORCE_LAG_FIT if second_force_lag == "default" else second_force_lag
+    if mode not in (None, "joint", "after"):
+        raise ValueError(f"second_force_lag: None, 'joint' or 'after', got {mode!r}")
     say = progress or (lambda msg: None)
     train = [(m, prepare(rig, m)) for m in records]
     held = [(m, prepare(rig, m)) for m in validate]
@@ -1265,13 +1283,24 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
         result["effects"] = effect_search(rig, fit_on, params, say, noise=noise, skip=mech + ("T_d",))
         chosen = list(result["effects"]["parameters"])
         params = params.replace(**result["effects"]["parameters"])
-        if chosen:
+        second = tuple(SECOND_FORCE_LAG) if mode else ()
+        joint = second if mode == "joint" else ()
+        if chosen or joint:
             # the selected effects refitted together with the mechanics and the disturbance model:
             # an effect chosen with the others held may have taken the place of a parameter's error
-            say(f"refitting {', '.join(mech + tuple(chosen))} and the disturbance model together")
-            params, cal = calibrate(rig, fit_on, params, names=mech + tuple(chosen), noise=noise)
+            # (and "joint": the second force lag with them, sharing the force's time scale with T_F)
+            say(f"refitting {', '.join(mech + tuple(chosen) + joint)} and the disturbance model together")
+            params, cal = calibrate(rig, fit_on, params, names=mech + tuple(chosen) + joint, noise=noise)
             noise = cal["noise"]
             result["effects"]["parameters"] = {n: cal["values"][n] for n in chosen}
+        if mode == "after":
+            say(f"fitting the second force lag ({', '.join(second)}) and the disturbance model, the rest held")
+            params, cal = calibrate(rig, fit_on, params, names=second, noise=noise)
+            noise = cal["noise"]
+        if second:
+            result["second_force_lag"] = {"mode": mode, "values": {n: cal["values"][n] for n in second},
+                                          "sigma": {n: cal["sigma"][n] for n in second},
+                                          "on_bounds": [n for n in cal["on_bounds"] if n in second]}
     own_models: dict = {}
     if cal is not None and effects:
         # where the catalogue explains too little: the located correction at the mechanics, a force
@@ -1433,7 +1462,8 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
                                 "relative": float(np.ptp([o[n] for o in own]) / abs(np.mean([o[n] for o in own])))}
                             for n in own[0]}
     result["parameters"] = {**{n: float(getattr(params, n)) for n in (*COIL_FIT[rig.drive], *mech)},
-                            **result.get("effects", {}).get("parameters", {})}
+                            **result.get("effects", {}).get("parameters", {}),
+                            **result.get("second_force_lag", {}).get("values", {})}
     out.mkdir(parents=True, exist_ok=True)
     plots = (_plots(rig, segs[:1], params, out, noise, black_box,
                     [*figs_after, *(v["after"] for v in result["validation"])]) if segs else [])

@@ -2,7 +2,7 @@
 
 States ``[x, v, i]`` (Eq. 15), input ``u`` [MU], output ``y`` [MU]. With ``T_a = 0`` (Eq. 5) the
 current is algebraic and the model has the two states ``[x, v]``; with a force lag ``T_F > 0``
-the force ``F`` is a fourth state.
+the force ``F`` is a fourth state, and with the second force lag (``beta_F > 0``) its slow part ``F2``.
 """
 
 from __future__ import annotations
@@ -55,14 +55,16 @@ def linearize(p: PlantParams, x: float | None = None, i: float | None = None) ->
     -------
     control.StateSpace
         Named ``maglev``: input ``u`` [MU], output ``y`` [MU], states ``x`` [m], ``v`` [m/s] and,
-        when their lags are on, ``i`` [A] (``T_a > 0``), ``F`` [N] (``T_F > 0``) and ``x_s`` [m], the
-        position the sensor sees (``T_y > 0``).
+        when their lags are on, ``i`` [A] (``T_a > 0``), ``F`` [N] (``T_F > 0``), ``F2`` [N] (the second
+        force lag's slow part, ``beta_F > 0``) and ``x_s`` [m], the position the sensor sees (``T_y > 0``).
     """
     x = PAPER_OPERATING_POINT[0] if x is None else x
     pt = formulas.point(p, x, i)
     dfdx, dfdi, c_y = pt.dF_dx, pt.dF_di, pt.dy_dx     # Eq. 16, 17 and the sensor's slope
     kin = p.k_i * p.k_DA                        # [A/MU]
     lag_f = p.T_F > 0
+    # the fast force's share: all of it, or 1 - beta_F beside the second lag's slow part (eddy_lag)
+    fb = 1.0 - p.beta_F if p.beta_F > 0 else 1.0
     if p.T_a > 0:
         n = 4 if lag_f else 3
         A = np.zeros((n, n))
@@ -72,13 +74,13 @@ def linearize(p: PlantParams, x: float | None = None, i: float | None = None) ->
         A[2, 2] = -1.0 / p.T_a
         B[2, 0] = kin / p.T_a
         if lag_f:
-            A[1, 3] = 1.0 / p.m_k
+            A[1, 3] = fb / p.m_k
             A[3, 0] = dfdx / p.T_F
             A[3, 2] = dfdi / p.T_F
             A[3, 3] = -1.0 / p.T_F
         else:
-            A[1, 0] = dfdx / p.m_k
-            A[1, 2] = dfdi / p.m_k
+            A[1, 0] = fb * dfdx / p.m_k
+            A[1, 2] = fb * dfdi / p.m_k
     else:
         n = 3 if lag_f else 2
         A = np.zeros((n, n))
@@ -86,16 +88,27 @@ def linearize(p: PlantParams, x: float | None = None, i: float | None = None) ->
         A[0, 1] = 1.0
         A[1, 1] = -p.k_FV / p.m_k
         if lag_f:
-            A[1, 2] = 1.0 / p.m_k
+            A[1, 2] = fb / p.m_k
             A[2, 0] = dfdx / p.T_F
             A[2, 2] = -1.0 / p.T_F
             B[2, 0] = dfdi * kin / p.T_F
         else:
-            A[1, 0] = dfdx / p.m_k
-            B[1, 0] = dfdi * kin / p.m_k
+            A[1, 0] = fb * dfdx / p.m_k
+            B[1, 0] = fb * dfdi * kin / p.m_k
+    states = ["x", "v"] + (["i"] if p.T_a > 0 else []) + (["F"] if lag_f else [])
+    if p.beta_F > 0:   # the slow part F2' = (F_s - F2)/T_F2, a share beta_F of the force on the ball
+        A = np.block([[A, np.zeros((n, 1))], [np.zeros((1, n + 1))]])
+        B = np.vstack([B, [[0.0]]])
+        A[1, n] = p.beta_F / p.m_k
+        A[n, 0], A[n, n] = dfdx / p.T_F2, -1.0 / p.T_F2
+        if p.T_a > 0:
+            A[n, 2] = dfdi / p.T_F2
+        else:
+            B[n, 0] = dfdi * kin / p.T_F2
+        n += 1
+        states.append("F2")
     C = np.zeros((1, n))
     C[0, 0] = c_y
-    states = ["x", "v"] + (["i"] if p.T_a > 0 else []) + (["F"] if lag_f else [])
     if p.T_y > 0:   # the sensor's lag: x_s' = (x - x_s)/T_y, y reads x_s
         A = np.block([[A, np.zeros((n, 1))], [np.zeros((1, n + 1))]])
         A[n, 0], A[n, n] = 1.0 / p.T_y, -1.0 / p.T_y

@@ -2,7 +2,8 @@
 
 Same equations and limits as docs/model.md, written apart from the C plant and integrated by a
 different kind of method: scipy's ``solve_ivp`` (DOP853, tight tolerances) on the full state
-``[x, v, i, F, x_s]`` (``x_s``: the position the sensor sees through its lag ``T_y``) between input breakpoints, with stop impacts and releases as terminal events.
+``[x, v, i, F, x_s, F_2]`` (``x_s``: the position the sensor sees through its lag ``T_y``; ``F_2``:
+the slow part of the force, effect ``eddy_lag``) between input breakpoints, with stop impacts and releases as terminal events.
 Nothing here calls C. :func:`maglev_cosim.loop.simulate.simulate` runs it in closed loop
 (``backend="reference"``).
 """
@@ -18,7 +19,7 @@ from scipy.integrate import solve_ivp
 from .params import PlantParams
 
 RTOL = 1e-12
-ATOL = np.array([1e-16, 1e-14, 1e-14, 1e-14, 1e-16])
+ATOL = np.array([1e-16, 1e-14, 1e-14, 1e-14, 1e-16, 1e-14])
 
 
 class ReferencePlant:
@@ -39,7 +40,7 @@ class ReferencePlant:
         self.volt = p.R_c > 0  # a voltage drive: the current is a state, the piece's input a voltage
         i = p.i_start if (p.T_a > 0 or self.volt) else self._command(self.u)
         F = self._force(i, p.x_start)
-        self.z = np.array([p.x_start, p.v_start, i, F, p.x_start])
+        self.z = np.array([p.x_start, p.v_start, i, F, p.x_start, F])
         self.mode = 0
         net = F - p.m_k * p.g
         if p.x_start >= p.x_max and (p.v_start > 0 or (p.v_start == 0 and net >= 0)):
@@ -81,7 +82,7 @@ class ReferencePlant:
         p = self.p
 
         def f(t: float, z: np.ndarray) -> np.ndarray:
-            x, v, i, F, xs = z
+            x, v, i, F, xs, F2 = z
             dxs = (x - xs) / p.T_y if p.T_y > 0 else 0.0
             if self.volt:
                 di = self._coil(ic, i, x, 0.0 if self.mode else v)
@@ -89,18 +90,26 @@ class ReferencePlant:
                 di = (ic - i) / p.T_a if p.T_a > 0 else 0.0
             fs = self._force(i if (p.T_a > 0 or self.volt) else ic, x)
             dF = (fs - F) / p.T_F if p.T_F > 0 else 0.0
-            force = F if p.T_F > 0 else fs
+            # the second, slower lag of a share beta_F of the force (effect eddy_lag)
+            dF2 = (fs - F2) / p.T_F2 if p.beta_F > 0 else 0.0
+            force = self._felt(F if p.T_F > 0 else fs, F2)
             if self.mode:
-                return np.array([0.0, 0.0, di, dF, dxs])
+                return np.array([0.0, 0.0, di, dF, dxs, dF2])
             friction = p.F_c * math.tanh(v / 1e-4) if p.F_c > 0 else 0.0
-            return np.array([v, (force - p.k_FV * v - friction) / p.m_k - p.g, di, dF, dxs])
+            return np.array([v, (force - p.k_FV * v - friction) / p.m_k - p.g, di, dF, dxs, dF2])
 
         return f
+
+    def _felt(self, fast: float, F2: float) -> float:
+        """The force the ball feels: the fast part (the force lag's output or the static force) and,
+        with the effect eddy_lag, the share beta_F of the slow lag's output."""
+        b = self.p.beta_F
+        return (1.0 - b) * fast + b * F2 if b > 0 else fast
 
     def _net(self, z: np.ndarray, ic: float) -> float:
         p = self.p
         force = z[3] if p.T_F > 0 else self._force(z[2] if (p.T_a > 0 or self.volt) else ic, z[0])
-        return force - p.m_k * p.g
+        return self._felt(force, z[5]) - p.m_k * p.g
 
     def set_input(self, u: float) -> None:
         """The D/A input [MU] from now on."""
@@ -172,11 +181,11 @@ class ReferencePlant:
     def outputs(self) -> dict[str, float]:
         """y [MU] (Eq. 12, 13), x [m], v [m/s], i [A], F [N] now."""
         p = self.p
-        x, v, i, F, xs = self.z
+        x, v, i, F, xs, F2 = self.z
         xs = xs if p.T_y > 0 else x     # the sensor's lag (Eq. 12 reads x itself without it)
         if p.T_a <= 0 and not self.volt:
             i = self._command(self._delayed(self.time))
-        force = F if p.T_F > 0 else self._force(i, x)
+        force = self._felt(F if p.T_F > 0 else self._force(i, x), F2)
         yv = p.k_x * xs + p.y_0 + p.k_x2 * xs * (xs - p.x_cal) + p.A_d * math.sin(2 * math.pi * p.f_d * self.time + p.phi_d)
         yv += p.r_y * self.time         # the sensor's offset drifting since t = 0 (effect sensor_drift)
         y = min(max(p.k_AD * yv + p.y_MU0, -1.0), 1.0)

@@ -65,6 +65,8 @@ class RigConfig:
     i_max: float = 1.5          # current_saturation when lowered
     T_a: float = 0.0            # amplifier_lag (the baseline neglects it, Eq. 5)
     T_F: float = 0.0            # force_lag
+    beta_F: float = 0.0         # eddy_lag: the share of the force behind a second, slower lag
+    T_F2: float = 0.01          # eddy_lag: that lag's time constant [s]
     T_d: float = 0.0            # delay
     k_x2: float = 0.0           # sensor_nonlinearity
     x_cal: float = 6.3e-3
@@ -162,12 +164,15 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     i_eq = min(math.sqrt(mg * (c.x_0 - x) ** expo / kc), c.i_max)
     u_hold = (i_eq / c.k_i + (c.u_dz if i_eq > 0 else 0.0) - c.u_0) / c.k_DA
     v, i, F = 0.0, i_eq, force(i_eq, x)
+    F2 = F                                   # the slow part of the force (eddy_lag), settled too
     xs = x                                   # the position the sensor sees (its lag T_y has settled)
 
-    h_max = min(1e-4, c.T_a / 10 if c.T_a > 0 else 1.0, c.T_F / 4 if c.T_F > 0 else 1.0)
+    h_max = min(1e-4, c.T_a / 10 if c.T_a > 0 else 1.0, c.T_F / 4 if c.T_F > 0 else 1.0,
+                c.T_F2 / 4 if c.beta_F > 0 else 1.0)
     nsub = max(1, int(math.ceil(ts / h_max - 1e-9)))
     lag_i, lag_F = c.T_a > 0, c.T_F > 0
     Ta, TF, kfv, m = c.T_a, c.T_F, c.k_FV, c.m_k
+    beta, TF2 = c.beta_F, c.T_F2
     fc = c.F_c
 
     def accel(xx: float, vv: float, ff: float, fr: float) -> float:
@@ -203,7 +208,7 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
         return dac[j] if j >= 0 else u_hold_q
 
     def integrate(span: float, u_val: float, steps: int) -> None:
-        nonlocal x, v, i, F, xs
+        nonlocal x, v, i, F, xs, F2
         ic = command(u_val)
         if not lag_i and c.di_max <= 0:
             i = ic
@@ -212,17 +217,19 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
         for _ in range(steps):
             if not lag_i and c.di_max > 0:     # slew-limited current
                 i += min(max(ic - i, -c.di_max * h), c.di_max * h)
-            # derivatives of (x, v, i, F)
-            def d(xx: float, vv: float, ii: float, ff: float) -> tuple[float, float, float, float]:
+            # derivatives of (x, v, i, F, F2)
+            def d(xx: float, vv: float, ii: float, ff: float, f2: float) -> tuple[float, ...]:
                 fs = force(ii, xx)
                 f_act = ff if lag_F else fs
+                if beta > 0:   # eddy currents: a share beta of the force answers late, through TF2
+                    f_act = (1.0 - beta) * f_act + beta * f2
                 return (vv, accel(xx, vv, f_act, fr), (ic - ii) / Ta if lag_i else 0.0,
-                        (fs - ff) / TF if lag_F else 0.0)
+                        (fs - ff) / TF if lag_F else 0.0, (fs - f2) / TF2 if beta > 0 else 0.0)
 
-            k1 = d(x, v, i, F)
-            k2 = d(x + h / 2 * k1[0], v + h / 2 * k1[1], i + h / 2 * k1[2], F + h / 2 * k1[3])
-            k3 = d(x + h / 2 * k2[0], v + h / 2 * k2[1], i + h / 2 * k2[2], F + h / 2 * k2[3])
-            k4 = d(x + h * k3[0], v + h * k3[1], i + h * k3[2], F + h * k3[3])
+            k1 = d(x, v, i, F, F2)
+            k2 = d(x + h / 2 * k1[0], v + h / 2 * k1[1], i + h / 2 * k1[2], F + h / 2 * k1[3], F2 + h / 2 * k1[4])
+            k3 = d(x + h / 2 * k2[0], v + h / 2 * k2[1], i + h / 2 * k2[2], F + h / 2 * k2[3], F2 + h / 2 * k2[4])
+            k4 = d(x + h * k3[0], v + h * k3[1], i + h * k3[2], F + h * k3[3], F2 + h * k3[4])
             x += h / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
             v += h / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
             if lag_i:
@@ -230,6 +237,8 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
                 i += min(max(di, -c.di_max * h), c.di_max * h) if c.di_max > 0 else di
             if lag_F:
                 F += h / 6 * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3])
+            if beta > 0:
+                F2 += h / 6 * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4])
             # inelastic stops, clamped at the end of each substep
             if x >= c.x_max:
                 x, v = c.x_max, min(v, 0.0)
