@@ -92,3 +92,34 @@ def test_the_diagnosis_lists_an_indistinguishable_rival_beside_the_chosen_effect
     d = pipeline.Diagnosis("r.csv", {}, {}, ["delay"], {}, {}, [chosen, twin, other], {}, {}, {}, {}, [], 0.0)
     assert [a["effect"] for a in d.alternatives["delay"]] == ["force_lag"]
     assert any(w.startswith("delay or force_lag: indistinguishable on this record") for w in d.warnings), d.warnings
+
+
+def test_the_prediction_mode_refit_ends_on_the_criterion_the_verdict_judges():
+    """Issue 22's 'explained' beyond the true model's error: the 3 ms amplifier lag of seed 2001 (the
+    loop at its limits a third of the time), refitted in prediction mode from the values the benchmark's
+    diagnosis ended with (T_a 2.94 ms, u_0 9 mV). The refit ends on the 20 ms prediction through the
+    disturbances estimated for its own values, the criterion of the verdict, so a further fit by that
+    criterion gains under 1 %; ending on the one-step polish (PEM) left 7.9 % to gain on this record."""
+    from dataclasses import replace
+
+    from maglev_cosim.diagnosis.replay import estimate_noise
+    from maglev_cosim.records.synth import draw_disturbance
+
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = read_record(synth_record(Path(tmp) / "rec.csv", seed=2001, disturbance=draw_disturbance(2001),
+                                       effects={"amplifier_lag": {"T_a": 0.003}}, duration=6.0), plausibility="warn")
+    base = baseline_params()
+    start = {"k_c": 7.0118e-06, "x_0": 0.0083704, "k_FV": 0.028255, "u_0": 0.0092517, "T_a": 0.0029427}
+    fit_mask = (np.floor(rec.t / BLOCK).astype(int) % 2) == 0
+    prob = pipeline._weighted(pipeline.Problem(rec, base, 1.0, 1.0, fit_mask,
+                                               noise=estimate_noise(rec, {**base, **start})), start)
+    vals, _ = pipeline._refit(prob, start, ["amplifier_lag"], lambda s: None)
+    parts = [BASELINE, CATALOGUE["amplifier_lag"]]
+    whole = prob.with_base(vals).with_mask(np.ones(rec.n, bool))
+    kstep = pipeline._weighted(replace(whole, noise=estimate_noise(rec, {**base, **vals})), vals)
+    cost = float(np.mean(pipeline.residuals(kstep, vals) ** 2))
+    further = fit(kstep, parts, [p.to_coords(vals) for p in parts], max_nfev=40)
+    assert 1 - further.cost / cost < 0.01, (cost, further.cost, vals)
