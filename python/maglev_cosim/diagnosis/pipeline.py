@@ -24,14 +24,15 @@ from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 
 import numpy as np
+from scipy.stats import chi2
 from threadpoolctl import threadpool_limits
 
 from ..records.record import Record
-from .acceptance import CRITERION, accept, fit_blocks
+from .acceptance import ALPHA, CRITERION, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .metrics import nrmse_fit
-from .problem import Parameterization, Problem, cost_on, fit, residuals, stacked
+from .problem import Fit, Parameterization, Problem, cost_on, fit, residuals, stacked
 from .replay import HORIZON_S, baseline_params, estimate_noise
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
 from .result import Json
@@ -72,6 +73,27 @@ class Diagnosis:
         out = list(self.record_warnings) + (list(self.verdict.warnings) if self.verdict else [])
         out += [f"in round {a['round']} {a['rival']} explains nearly as much as {a['chosen']}: the record does not "
                 "separate the two well" for a in self.unexplained.get("ambiguous", [])]
+        for chosen, rivals in self.alternatives.items():
+            for r in rivals:
+                out.append(f"{chosen} or {r['effect']}: indistinguishable on this record (held-out costs "
+                           f"{r['held_out_cost_chosen']:.4g} and {r['held_out_cost_rival']:.4g}, LR {r['lr_statistic']:.1f} "
+                           f"where {r['threshold']:.1f} would tell them apart); {chosen} was kept for its lower cost")
+        return out
+
+    @property
+    def alternatives(self) -> dict[str, list[dict]]:
+        """Each selected effect's rivals that the held-out blocks do not tell from it (:func:`distinct`)."""
+        out: dict[str, list[dict]] = {}
+        for c in self.candidates:
+            if not c.get("selected"):
+                continue
+            for r in self.candidates:
+                t = r.get("against_chosen")
+                if r["round"] == c["round"] and r is not c and t and not t["distinct"]:
+                    out.setdefault(c["effect"], []).append(
+                        {"effect": r["effect"], "lr_statistic": t["lr_statistic"], "threshold": t["threshold"],
+                         "held_out_cost_chosen": c["held_out_cost_after"],
+                         "held_out_cost_rival": r["held_out_cost_after"]})
         return out
 
     def to_json(self) -> Json:
@@ -85,6 +107,7 @@ class Diagnosis:
             "before": self.before,
             "after": self.after,
             "selected": self.selected,
+            "alternatives": self.alternatives,
             "parameters": self.parameters,
             "uncertainties": self.uncertainties,
             "candidates": self.candidates,
@@ -270,6 +293,54 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
     return entry, vals
 
 
+#: False-distinction probability of :func:`distinct`: the acceptance test's (``acceptance.ALPHA``),
+#: so that the choice between two effects is held to the standard of the choice of one.
+DISTINCT_ALPHA = ALPHA
+
+
+def distinct(chosen: Mapping, rival: Mapping, alpha: float = DISTINCT_ALPHA) -> dict:
+    """Whether the held-out blocks tell the chosen candidate from an accepted rival: the acceptance
+    test's likelihood ratio between the two, ``N_eff·ln(J_rival/J_chosen)`` (``N_eff`` the chosen
+    fit's effective held-out samples), against the chi-square quantile of one degree of freedom at
+    ``1 - alpha``: the rival, judged as an effect added to the chosen one's model, would gain too
+    little to be told from noise. Two effects of one transfer function from u to y (a delay and a
+    force lag of a few ms) reach held-out costs a fraction of a per cent apart: the record does
+    not tell which. (A Vuong test of the per-sample differences, tried first, called a 12 % cost
+    difference indistinguishable: the differences concentrate in the few samples after each step.)"""
+    j_c, j_r, n_eff = chosen["held_out_cost_after"], rival["held_out_cost_after"], chosen["n_eff"]
+    stat = n_eff * math.log(j_r / j_c) if j_c > 0 and j_r > 0 else math.inf
+    threshold = float(chi2.ppf(1 - alpha, 1))
+    return {"lr_statistic": float(stat), "threshold": threshold, "distinct": bool(stat > threshold)}
+
+
+def against_refitted(prob: Problem, hold_mask: np.ndarray, hold_before: float, selected: Sequence[str],
+                     entry: dict, vals: dict[str, float], rnd: int) -> tuple[dict, dict, Fit]:
+    """A further effect, accepted against the model of the ``selected`` effects as it stood, judged
+    again against that model refitted in full (the baseline's and every selected effect's
+    parameters) from where the candidate's fit ended, the candidate turned off; the candidate's
+    model is refitted in full too (its fit held the selected effects' parameters). A candidate
+    that only patches an under-fitted first effect (a friction that moved the calibration to
+    where the current limit, freed, fits better) gains nothing against the refitted model. The
+    reference is the lower of the two held-out costs: the model as it stood and refitted.
+    Returns the new table entry, the candidate's values and the refitted model's fit."""
+    eff = CATALOGUE[entry["effect"]]
+    null_parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in selected)]
+    start = {**vals, **{p: prob.base[p] for p in eff.params}}
+    null = fit(prob.with_base(start), null_parts, [p.to_coords(start) for p in null_parts], max_nfev=FULL_NFEV)
+    null = replace(null, values={**start, **null.values})
+    alt_parts = [*null_parts, eff]
+    alt = fit(prob.with_base(vals), alt_parts, [p.to_coords(vals) for p in alt_parts], max_nfev=FULL_NFEV)
+    alt_vals = {**vals, **alt.values}
+    hold_null = cost_on(prob, null.values, hold_mask)
+    new, alt_vals = judge(prob, hold_mask, min(hold_before, hold_null), {"effect": entry["effect"],
+                                                                         "values": alt_vals}, rnd)
+    new.update(stage="against refitted", held_out_cost_as_it_stood=hold_before,
+               held_out_cost_refitted=hold_null,
+               first_refitted={p: null.values[p] for part in null_parts for p in part.params},
+               as_it_stood={k: entry[k] for k in ("held_out_gain", "lr_statistic", "accepted")})
+    return new, alt_vals, null
+
+
 @dataclass
 class Search:
     selected: list[str]
@@ -293,6 +364,7 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             if not remaining:
                 break
             hold_before = cost_on(prob, current, hold_mask)
+            better_null: dict[str, float] | None = None
             say(f"round {rnd}: fitting {len(remaining)} candidate effect(s) on the fit blocks")
             # the costliest fits first, so that no core idles at the end of the round: as the last
             # round measured them, or in the first as many starts and parameters they have
@@ -323,14 +395,42 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                         + f"(LR {entry['lr_statistic']:.1f} vs {entry['threshold']:.1f}) -> "
                         + ("accepted" if entry["accepted"] else "rejected"))
             # (a screen that passes the test is above SCREEN_SHARE: only converged fits are accepted)
+            if selected:
+                # a further effect is judged against the model of the effects already selected
+                # refitted in full from where its fit ended, not against that model as it stood
+                cur_cost = float(np.mean(residuals(prob, current) ** 2))
+                for e, (entry, vals) in list(results.items()):
+                    if not entry["accepted"]:
+                        continue
+                    new, new_vals, null = against_refitted(prob, hold_mask, hold_before, selected, entry, vals, rnd)
+                    results[e] = (new, new_vals)
+                    say(f"  {e} against {', '.join(selected)} refitted in full from where its fit ended: held-out "
+                        f"cost change {-100 * new['held_out_gain']:+.1f} % (LR {new['lr_statistic']:.1f} vs "
+                        f"{new['threshold']:.1f}) -> " + ("accepted" if new["accepted"] else "rejected"))
+                    if null.cost < cur_cost:
+                        # the selected effects fit better from there: the next round (or the final
+                        # refit) starts from the better fit, whatever becomes of the candidate
+                        better_null, cur_cost = {**current, **null.values}, null.cost
             candidates += [entry for entry, _ in results.values()]
             accepted = [r for r in results.values() if r[0]["accepted"]]
             rounds.append({"round": rnd, "held_out_cost_before": hold_before,
                            "accepted": [e["effect"] for e, _ in accepted]})
             if not accepted:
+                if better_null is not None:
+                    current = better_null
                 break
             entry, vals = min(accepted, key=lambda r: r[0]["held_out_cost_after"])
             entry["selected"] = True
+            for rival, _ in accepted:
+                if rival is entry:
+                    continue
+                test = distinct(entry, rival)
+                rival["against_chosen"] = test
+                if not test["distinct"]:
+                    entry.setdefault("indistinguishable_from", []).append(rival["effect"])
+                    say(f"  {entry['effect']} and {rival['effect']} fit the held-out blocks alike (LR "
+                        f"{test['lr_statistic']:.1f}, at least {test['threshold']:.1f} to tell them apart): "
+                        "the record does not tell which")
             selected.append(entry["effect"])
             # the model of the next round, fitted to convergence: else a candidate of the next round
             # is credited with what merely finishing this fit gains
@@ -468,6 +568,16 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
         pem = replace(whole, noise=estimate_noise(prob.rec, values), horizon_s=prob.rec.ts, stride=1)
         pem = _weighted(pem, values)
         final = fit(pem, parts, [p.to_coords(values) for p in parts], max_nfev=30)
+        values = {**values, **final.values}
+        # The verdict judges the k-step prediction through the final model's own disturbance
+        # estimate: the refit ends on that criterion, the disturbances re-estimated for the polished
+        # model (the k-step fit above used those of the free-run search's model). On the benchmark's
+        # 3 ms amplifier lag of seed 2001, whose loop sits at its limits in 45 % of the samples, the
+        # polished model (T_a 2.94 ms, u_0 9 mV) left 1.29 times the true model's 20 ms error; this
+        # fit, 0.97 times (T_a 2.98 ms, u_0 6 mV).
+        say("refitting by the k-step prediction, the disturbances re-estimated for the polished model")
+        kstep = _weighted(replace(whole, noise=estimate_noise(prob.rec, values)), values)
+        final = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
         values = {**values, **final.values}
     say("estimating parameter uncertainties")
     steps = {k: v for p in parts for k, v in p.uncertainty_scales().items()}

@@ -188,15 +188,18 @@ def own_share(rec: Record, values: Mapping[str, float], noise: NoiseModel, steps
     n = rec.n
     q_y, q_u = steps if steps is not None else (converter_step(rec.y), converter_step(rec.u))
     a = float(np.exp(-2 * np.pi * noise.f_force * rec.ts))
-    shares = []
-    for seed in range(draws):
+
+    def one(seed: int) -> float:
         rng = np.random.default_rng([seed, 11])
         dF = lfilter([np.sqrt(1 - a * a)], [1.0, -a], rng.standard_normal(n),
                      zi=[a * rng.standard_normal()])[0] * noise.q_force
         sim = replay_injected(rec, values, dF=dF, dy=sensor_noise(noise, q_y, n, rec.ts, rng), y_step=q_y, u_step=q_u)
         own = dataclasses.replace(rec, u=sim["u"], y=sim["y"])
         innov = predict(own, values, noise, horizon_s=0.0)["innov"]    # the innovations only: no k-step runs
-        shares.append(predictable_share(innov, own.u))
+        return predictable_share(innov, own.u)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:       # as floor_check: C with the GIL released
+        shares = list(pool.map(one, range(draws)))
     return float(np.mean(shares))
 
 
@@ -228,14 +231,19 @@ def floor_check(rec: Record, values: Mapping[str, float], noise: NoiseModel, fig
     absorbed effect does not behave like the Gauss-Markov force the filter assumes. Returns the
     record's RMS k-step errors of y and u over the own records' (``ratio_y``, ``ratio_u``) and both."""
     q = steps if steps is not None else (converter_step(rec.y), converter_step(rec.u))
-    errs, shares = [], []
-    for seed in range(draws):
+
+    def one(seed: int) -> tuple[list[float], float]:
         own, _ = _own_records(rec, values, noise, q, seed)
         pr = predict(own, values, noise, horizon_s=horizon_s)
         ok = np.isfinite(pr["y_pred"]) & np.isfinite(pr["u_pred"])
-        errs.append([float(np.sqrt(np.mean((own.y - pr["y_pred"])[ok] ** 2))),
-                     float(np.sqrt(np.mean((own.u - pr["u_pred"])[ok] ** 2)))])
-        shares.append(reference_share(own, pr["innov"])["r2"])
+        return ([float(np.sqrt(np.mean((own.y - pr["y_pred"])[ok] ** 2))),
+                 float(np.sqrt(np.mean((own.u - pr["u_pred"])[ok] ** 2)))], reference_share(own, pr["innov"])["r2"])
+
+    # two threads: the replays and filters run in C with the GIL released; each draw has its own
+    # seed and the results keep their order, so the figures are those of one thread
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        outs = list(pool.map(one, range(draws)))
+    errs, shares = [o[0] for o in outs], [o[1] for o in outs]
     own_y, own_u = (float(v) for v in np.sqrt(np.mean(np.square(errs), axis=0)))
     rec_y, rec_u = figs.prediction_rms["y"], figs.prediction_rms["u"]
     return {"horizon_s": horizon_s, "record_rms_y": rec_y, "record_rms_u": rec_u, "own_rms_y": own_y,

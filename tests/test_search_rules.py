@@ -1,0 +1,125 @@
+"""The search's rules for a second effect and for a choice between rivals (issue 22, item 4, and the
+force lag taken for its twin, the delay): a further effect is accepted only against the model of the
+effects already selected refitted in full, and a rival the held-out blocks do not tell from the chosen
+effect is listed beside it. Short records of the rig emulator, so the quick tier stays quick."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maglev_cosim.diagnosis import pipeline
+from maglev_cosim.diagnosis.acceptance import fit_blocks
+from maglev_cosim.diagnosis.effects import BASELINE, CATALOGUE
+from maglev_cosim.diagnosis.problem import cost_on, fit
+from maglev_cosim.diagnosis.replay import baseline_params
+from maglev_cosim.records.record import read_record
+from maglev_cosim.records.synth import synth_record
+
+I_MAX = 0.66      # a limit that bites after each step up of a 0.6 s square (the matrix's row: 10 % of the samples)
+
+
+def _limited(tmp_path, effects=None, i_max=I_MAX):
+    """A 4 s record with the current limit (and ``effects``), its calibrated problem and the model
+    with the limit fitted in full: what the search holds after its first round."""
+    planted = {"current_saturation": {"i_max": i_max}, **(effects or {})}
+    rec = read_record(synth_record(tmp_path / "rec.csv", seed=5, effects=planted, reference="square", period=0.6,
+                                   duration=4.0), plausibility="warn")
+    fit_mask = fit_blocks(rec.t)
+    cal = pipeline.calibrate(rec, baseline_params(), fit_mask, lambda s: None)
+    prob = cal.prob
+    parts = [BASELINE, CATALOGUE["current_saturation"]]
+    start = {**cal.values, "i_max": i_max * 1.05}
+    first = fit(prob.with_base(start), parts, [p.to_coords(start) for p in parts], max_nfev=60)
+    return rec, prob, ~fit_mask, {**start, **first.values}
+
+
+def test_a_second_effect_that_only_patches_an_underfitted_first_one_is_rejected(tmp_path):
+    """The first effect held where it under-fits (i_max 8 % high): a candidate whose fit also moved
+    the limit to its right value, with a friction of 0.01 % of the weight, beats the model as it
+    stood by far, and gains nothing against that model refitted in full from the candidate's values."""
+    rec, prob, hold, first = _limited(tmp_path)
+    assert not rec.warnings, rec.warnings
+    assert abs(first["i_max"] / I_MAX - 1) < 0.03, first["i_max"]
+    stood = {**first, "i_max": 1.08 * first["i_max"]}
+    hold_before = cost_on(prob, stood, hold)
+    patch = {**first, "F_c": 1e-4}           # friction ~0: the gain is the limit's
+    entry, vals = pipeline.judge(prob, hold, hold_before, {"effect": "coulomb_friction", "values": patch}, 2)
+    assert entry["accepted"], entry                              # as it stood, the patch passes the test
+    new, _, null = pipeline.against_refitted(prob, hold, hold_before, ["current_saturation"], entry, vals, 2)
+    assert not new["accepted"], new
+    assert new["held_out_cost_refitted"] < 0.5 * hold_before, new
+    assert abs(null.values["i_max"] / I_MAX - 1) < 0.03, null.values["i_max"]
+
+
+def test_a_true_second_effect_survives_the_refitted_first_one(tmp_path):
+    """A limit of 0.72 A with a 2.5 ms delay (the limit active in 6 % of the samples): the delay fitted
+    with the limit present is still accepted against the limit's model refitted in full."""
+    rec, prob, hold, first = _limited(tmp_path, {"delay": {"T_d": 0.0025}}, i_max=0.72)
+    assert not rec.warnings, rec.warnings            # the loop in control: the limit bites at the steps
+    hold_before = cost_on(prob, first, hold)
+    res = pipeline.fit_candidate(prob, first, "delay")
+    entry, vals = pipeline.judge(prob, hold, hold_before, res, 2)
+    assert entry["accepted"], entry
+    new, vals, _ = pipeline.against_refitted(prob, hold, hold_before, ["current_saturation"], entry, vals, 2)
+    assert new["accepted"], new
+    assert abs(vals["T_d"] / 0.0025 - 1) < 0.15, vals["T_d"]
+
+
+def test_two_rivals_a_fraction_of_a_per_cent_apart_are_indistinguishable():
+    """The force lag of seed 2001 against its twin, the delay: held-out costs 0.2 % apart on some
+    hundred effective samples cannot be told apart; 12 % apart (a delay against an amplifier lag on
+    the same record) can, as can costs four times apart on thirty samples (a limit against friction)."""
+    def cand(j, n_eff):
+        return {"held_out_cost_after": j, "n_eff": n_eff}
+
+    assert not pipeline.distinct(cand(0.498, 300.0), cand(0.499, 300.0))["distinct"]
+    assert pipeline.distinct(cand(0.498, 300.0), cand(0.557, 300.0))["distinct"]
+    assert pipeline.distinct(cand(0.0129, 27.0), cand(0.0507, 27.0))["distinct"]
+    t = pipeline.distinct(cand(0.5, 100.0), cand(0.5 * np.exp(10.0 / 100.0), 100.0))     # LR 10 < 10.83
+    assert not t["distinct"] and t["threshold"] == pytest.approx(10.83, abs=0.01), t
+
+
+def test_the_diagnosis_lists_an_indistinguishable_rival_beside_the_chosen_effect():
+    """Diagnosis.alternatives and its warning, from a round's candidates: the chosen effect's accepted
+    rivals that :func:`pipeline.distinct` does not tell from it, and no others."""
+    chosen = {"effect": "delay", "round": 1, "selected": True, "accepted": True, "held_out_cost_after": 0.498,
+              "n_eff": 300.0}
+    twin = {"effect": "force_lag", "round": 1, "accepted": True, "held_out_cost_after": 0.499, "n_eff": 300.0}
+    other = {"effect": "amplifier_lag", "round": 1, "accepted": True, "held_out_cost_after": 0.557, "n_eff": 300.0}
+    for r in (twin, other):
+        r["against_chosen"] = pipeline.distinct(chosen, r)
+    d = pipeline.Diagnosis("r.csv", {}, {}, ["delay"], {}, {}, [chosen, twin, other], {}, {}, {}, {}, [], 0.0)
+    assert [a["effect"] for a in d.alternatives["delay"]] == ["force_lag"]
+    assert any(w.startswith("delay or force_lag: indistinguishable on this record") for w in d.warnings), d.warnings
+
+
+def test_the_prediction_mode_refit_ends_on_the_criterion_the_verdict_judges():
+    """Issue 22's 'explained' beyond the true model's error: the 3 ms amplifier lag of seed 2001 (the
+    loop at its limits a third of the time), refitted in prediction mode from the values the benchmark's
+    diagnosis ended with (T_a 2.94 ms, u_0 9 mV). The refit ends on the 20 ms prediction through the
+    disturbances estimated for its own values, the criterion of the verdict, so a further fit by that
+    criterion gains under 1 %; ending on the one-step polish (PEM) left 7.9 % to gain on this record."""
+    from dataclasses import replace
+
+    from maglev_cosim.diagnosis.replay import estimate_noise
+    from maglev_cosim.records.synth import draw_disturbance
+
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        rec = read_record(synth_record(Path(tmp) / "rec.csv", seed=2001, disturbance=draw_disturbance(2001),
+                                       effects={"amplifier_lag": {"T_a": 0.003}}, duration=6.0), plausibility="warn")
+    base = baseline_params()
+    start = {"k_c": 7.0118e-06, "x_0": 0.0083704, "k_FV": 0.028255, "u_0": 0.0092517, "T_a": 0.0029427}
+    fit_mask = fit_blocks(rec.t)
+    prob = pipeline._weighted(pipeline.Problem(rec, base, 1.0, 1.0, fit_mask,
+                                               noise=estimate_noise(rec, {**base, **start})), start)
+    vals, _ = pipeline._refit(prob, start, ["amplifier_lag"], lambda s: None)
+    parts = [BASELINE, CATALOGUE["amplifier_lag"]]
+    whole = prob.with_base(vals).with_mask(np.ones(rec.n, bool))
+    kstep = pipeline._weighted(replace(whole, noise=estimate_noise(rec, {**base, **vals})), vals)
+    cost = float(np.mean(pipeline.residuals(kstep, vals) ** 2))
+    further = fit(kstep, parts, [p.to_coords(vals) for p in parts], max_nfev=40)
+    assert 1 - further.cost / cost < 0.01, (cost, further.cost, vals)
