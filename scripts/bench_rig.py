@@ -55,7 +55,10 @@ def section(res: dict, command: str, wall_s: float) -> str:
              "(physics with its effects and its calibrated disturbance model, driven by the measured PWM duty), "
              "the black-box baseline (one ridge regression per horizon on the last 30 ms of gap differences and "
              "the measured current and its square up to the predicted instant, fitted by the tool on the three "
-             "calibration records) and 'constant velocity'.", "", *real_rig.comparison_table(comp)]
+             "calibration records), the same black box with the current only up to the prediction's start (what "
+             "separates the two is the controller's reaction after the start, which the black box reads and a "
+             "physical model driven by the actuator signal cannot: docs/diagnosis.md, 'Model against black box') "
+             "and 'constant velocity'.", "", *real_rig.comparison_table(comp)]
     lines += ["", "Per segment: the current from the PWM duty (fit %), and the skill of model / black box at each "
               "horizon.", "", "| segment | role | current from PWM | 5 ms | 20 ms | 50 ms |", "|---|---|---|---|---|---|"]
     rows = [(s["label"], "calibration", s["after"]) for e in res["records"] for s in e["segments"]]
