@@ -14,6 +14,7 @@ from maglev_cosim.plant.linear import operating_point
 from maglev_cosim.loop.simulate import LoopResponse, reference_signal, simulate
 from maglev_cosim.plant.params import PlantParams, get_params
 from maglev_cosim.diagnosis.effects import CATALOGUE
+from rig_physics import RIG_PHYSICS, open_loop_pair
 
 X = 0.0032
 
@@ -171,45 +172,15 @@ def test_each_effect_agrees_between_the_c_plant_and_the_reference(fmu_path, effe
     assert np.max(np.abs(a["u"] - b["u"])) <= 10 * tol
 
 
-# Plant coordinates of two other rigs' physics (x grows toward the coil; the rig files in
-# maglev_cosim/rigs map their gap conventions onto this): Inteco's exponential force law with a
-# voltage-driven coil L(x, i) and a PWM floor, and the levitador's Eq. 8 law with L = L_0 + L_g/gap.
-RIG_PHYSICS = {
-    "exponential law, voltage drive, L(x, i)": dict(
-        k_c=0.0, k_e=3.2, z_e=6.3e-3, x_0=0.0, x_n=-0.03, x_min=-0.0218, x_max=0.0, m_k=0.06054, k_FV=0.0,
-        R_c=4.17, L_0=0.0654, L_x=0.0404, z_L=6.3e-3, L_i=0.0329, a_i=5.3, b_i=1.04, V_min=0.043,
-        k_DA=11.658, u_0=-0.5608, i_max=3.0, k_x=1.0, y_0=0.0, k_AD=40.0, x_start=-0.012),
-    "Eq. 8 law, voltage drive, inverse-gap L": dict(
-        k_c=9.1e-6, x_0=0.0052, x_n=0.0, x_min=-0.03, x_max=0.0, m_k=0.018, k_FV=0.0, R_c=2.72,
-        L_0=0.0363, L_g=1.82e-5, k_DA=12.0, i_max=5.0, k_x=1.0, y_0=0.0, k_AD=30.0, x_start=-0.01),
-}
-
-
 @pytest.mark.parametrize("name", list(RIG_PHYSICS))
 def test_rig_physics_agrees_between_the_c_plant_and_the_reference(name):
     """The voltage-driven coil and the other force laws, written twice (C and Python), agree in open
     loop: from rest at the equilibrium, a 2 % input wobble lifts or drops the ball within 0.3 s
     (the open-loop plant is unstable), so the comparison crosses free flight and a stop."""
-    from maglev_cosim.plant.reference import ReferencePlant
-
-    from maglev_cosim.plant.formulas import point
-
-    base = get_params("baseline").replace(**RIG_PHYSICS[name])
-    op = point(base, base.x_start)
-    p = base.replace(i_start=op.i)
-    u = op.u * (1 + 0.02 * np.sin(np.arange(300) * 0.03))
-    c = fast.open_loop(p.to_start_values(), u)
-    ref = ReferencePlant(p)
-    ref.reset(u[0])
-    ys, xs, cur = [], [], []
-    for k in range(len(u)):
-        o = ref.outputs()
-        ys.append(o["y"]), xs.append(o["x"]), cur.append(o["i"])
-        ref.set_input(u[k])
-        ref.step(1e-3)
+    c, r = open_loop_pair(RIG_PHYSICS[name])
     assert np.ptp(c["x"]) > 2e-3                             # the ball travels
-    assert np.max(np.abs(c["i"] - np.array(cur))) <= 1e-7    # [A]
-    assert np.max(np.abs(c["x"] - np.array(xs))) <= 1e-8     # [m]
+    assert np.max(np.abs(c["i"] - r["i"])) <= 1e-7           # [A]
+    assert np.max(np.abs(c["x"] - r["x"])) <= 1e-8           # [m]
 
 
 def test_a_short_force_lag_tends_to_none():

@@ -12,43 +12,17 @@ from maglev_cosim.diagnosis.replay import baseline_params, estimate_noise, predi
 from maglev_cosim.plant import fast
 from maglev_cosim.plant.formulas import point
 from maglev_cosim.plant.params import get_params
-from maglev_cosim.plant.reference import ReferencePlant
 from maglev_cosim.records.record import read_record
 from maglev_cosim.records.synth import synth_record
-
-#: Inteco's physics in plant coordinates (test_cosim.RIG_PHYSICS): exponential law, voltage drive.
-INTECO = dict(k_c=0.0, k_e=3.2, z_e=6.3e-3, x_0=0.0, x_n=-0.03, x_min=-0.0218, x_max=0.0, m_k=0.06054, k_FV=0.0,
-              R_c=4.17, L_0=0.0654, L_x=0.0404, z_L=6.3e-3, L_i=0.0329, a_i=5.3, b_i=1.04, V_min=0.043,
-              k_DA=11.658, u_0=-0.5608, i_max=3.0, k_x=1.0, y_0=0.0, k_AD=40.0, x_start=-0.012)
-
-
-def _open_loop(extra: dict) -> tuple[dict, dict]:
-    """The Inteco plant from rest at its equilibrium, a 2 % input wobble, 0.3 s: the C plant and the
-    reference (x [m], i [A], F [N] per sample)."""
-    base = get_params("baseline").replace(**INTECO, **extra)
-    op = point(base, base.x_start)
-    p = base.replace(i_start=op.i)
-    u = op.u * (1 + 0.02 * np.sin(np.arange(300) * 0.03))
-    c = fast.open_loop(p.to_start_values(), u)
-    ref = ReferencePlant(p)
-    ref.reset(u[0])
-    r = {"x": [], "i": [], "F": []}
-    for k in range(len(u)):
-        o = ref.outputs()
-        for n in r:
-            r[n].append(o[n])
-        ref.set_input(u[k])
-        ref.step(1e-3)
-    return c, {n: np.array(v) for n, v in r.items()}
-
+from rig_physics import INTECO, open_loop_pair
 
 @pytest.mark.parametrize("extra", [{"beta_F": 0.6, "T_F2": 0.015}, {"beta_F": 0.6, "T_F2": 0.015, "T_F": 5e-3},
                                    {"beta_F": 0.3, "T_F2": 0.05, "T_F": 2e-3, "T_d": 1.5e-3}])
 def test_the_two_lag_force_agrees_between_the_c_plant_and_the_reference(extra):
     """The voltage-driven Inteco plant with the second lag (and the first, and a delay), C against the
     reference written from docs/model.md: the ball travels through free flight and onto a stop."""
-    c, r = _open_loop(extra)
-    none, _ = _open_loop({})
+    c, r = open_loop_pair(INTECO, extra)
+    none, _ = open_loop_pair(INTECO)
     assert np.ptp(c["x"]) > 2e-3                               # the ball travels
     assert np.max(np.abs(c["x"] - none["x"])) > 1e-4           # the lag acts
     assert np.max(np.abs(c["i"] - r["i"])) <= 1e-7             # [A]

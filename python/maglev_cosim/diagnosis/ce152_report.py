@@ -9,6 +9,7 @@ import json
 import math
 import os
 import zipfile
+from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
 

@@ -406,7 +406,7 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
         + (f" and {noise.r_coloured:.3g} MU RMS coloured (corner {noise.f_sensor:.3g} Hz)" if noise.coloured else "")
         + f"; k-step prediction over {HORIZON_S * 1e3:.0f} ms")
     warnings: list[str] = []
-    (sb, pb), (sf, pf) = on_bounds(baseline), on_bounds(final)
+    (sb, _), (sf, pf) = on_bounds(baseline), on_bounds(final)
     bounds = sf       # the final model's: the calibration failed
     for text in pf:
         warnings.append(f"{text} sits on its physical limit: the record does not resolve it")

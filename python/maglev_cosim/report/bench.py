@@ -14,8 +14,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 # Imported inside a function, on purpose: resource (POSIX only; Windows falls back to process_time).
 from ..diagnosis import diagnose as run_diagnosis
 from ..loop.checks import comm_step_study, staircase_input
