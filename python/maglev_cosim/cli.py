@@ -341,9 +341,10 @@ def _print_result(res: DiagnosisResult, recs: list[Recording] = ()) -> None:
               "only up to the start / constant velocity")
         fmt = lambda v: "nan" if v is None else f"{v:+.2f}"  # noqa: E731
         for c in res.comparison:
-            for h, k in c.horizons.items():
+            for h, k in c.horizons.items():     # one record's blocks: no worst to show beside the median
                 print(f"  {c.role} ({c.segments}) {h:>6}: " + " / ".join(
-                    f"{fmt(getattr(k, w))} ({fmt(getattr(k, w + '_worst'))})" for w in k.WHO))
+                    fmt(getattr(k, w)) + (f" ({fmt(getattr(k, w + '_worst'))})" if c.segments > 1 else "")
+                    for w in k.WHO))
     if res.written:
         print("wrote " + ", ".join(str(p) for p in res.written))
 
