@@ -204,6 +204,7 @@ def test_identify_prints_the_papers_values(tmp_path):
     assert d["simplex"]["k_FV"] == pytest.approx(0.03, rel=0.3)
 
 
+@pytest.mark.slow
 def test_bench_prints_tables(fmu_path, tmp_path):
     js = tmp_path / "bench.json"
     r = cli("bench", "--duration", "1", "--no-diagnose", "--fmu", str(fmu_path), "--json", str(js))

@@ -269,6 +269,7 @@ def test_converters_put_y_and_u_on_their_grid():
 
 # --------------------------------------------------------------------------- records
 
+@pytest.mark.slow
 def test_record_is_read_back_and_diagnosed(tmp_path):
     path = E.synth_record(tmp_path / "r.csv", effects={"delay": {"T_d": 0.002}}, reference="square", duration=2.0,
                           seed=4, period=1.0)

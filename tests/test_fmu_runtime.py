@@ -44,6 +44,7 @@ def test_input_table_at_1ms_lifts_and_drops_the_ball(fmu_path):
     assert np.all(np.abs(r["y"]) <= 1.0)
 
 
+@pytest.mark.slow
 def test_sources_in_the_archive_build_a_working_binary(fmu_path, tmp_path):
     from fmpy.build import build_platform_binary
 

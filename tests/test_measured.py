@@ -422,6 +422,7 @@ def test_every_shared_session_reads_as_published():
         assert m.warnings and "Latin-1" in m.warnings[0]
 
 
+@pytest.mark.slow
 @need_session
 def test_diagnose_the_shared_step_session_on_the_levitador_rig(tmp_path, capsys):
     """The second format through the levitador rig path, with the benchmark's cascade declared: the
