@@ -60,7 +60,7 @@ LIMIT_SHARE = (0.01, 0.60)
 WEIGHT = get_params("section3").m_k * get_params("section3").g     #: the ball's weight [N]
 FRICTION_SHARE = (0.01, 0.10)
 #: The done-when figures of issue 22 that the benchmark checks (docs/diagnosis.md, "The acceptance benchmark").
-TARGETS = {"false positives": "≤ 2 %", "power": "≥ 95 %", "spurious second effect": "≤ 2 %",
+TARGETS = {"the emulator's own computation delay found as a delay": "—", "false positives": "≤ 2 %", "power": "≥ 95 %", "spurious second effect": "≤ 2 %",
            "'explained' beyond 1.2× the no-effect twin's error": "0", "friction ≥ 2 % of the weight": "100 %",
            "current limit found, i_max within 5 %": "100 %"}
 
@@ -147,6 +147,24 @@ EMULATOR_NAMES = {"rig": "the project's emulator (`maglev_cosim.records.emulator
                   "ivp": "the independent emulator (`maglev_cosim.records.emulator_ivp`, written from the paper)"}
 
 
+#: A delay found on a no-effect record is the emulator's own computation delay (below) when it lies
+#: within 3 sigma of it, or within this share of it.
+OWN_DELAY_TOL = 0.3
+
+
+def _own_delay(path: Path, ts: float) -> float:
+    """The delay a record's emulator puts in by itself [s]: the independent emulator's PID output
+    reaches the D/A ``pid_offset`` of a sample late (its truth sidecar's settings); 0 for the
+    project emulator. A ``delay`` found at that value on a no-effect record is a finding about the
+    record, not a false positive, and the benchmark counts it apart."""
+    return float(_truth(path).get("settings", {}).get("pid_offset", 0.0)) * ts
+
+
+def false_positives(null: list[dict]) -> int:
+    """No-effect records where the diagnosis selected something other than the emulator's own delay."""
+    return sum(bool(r["selected"]) and not r.get("own_delay_found", False) for r in null)
+
+
 def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n_friction: int = 0) -> dict:
     """The acceptance benchmark: false positives on no-effect records, power on catalogue effects."""
     out: dict = {"null": [], "power": []}
@@ -164,13 +182,21 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n
         after_null[seed] = {"free_run": d.after["rms_u"], "prediction": d.verdict.after.prediction_rms["u"],
                             "prediction_y": d.verdict.after.prediction_rms["y"],
                             "current_percentiles": _truth(path)["current_percentiles"]}
+        est = {p: d.parameters[p] for e in d.selected for p in CATALOGUE[e].params}
+        own = _own_delay(path, rec.ts)
+        own_found = bool(own > 0 and d.selected == ["delay"]
+                         and abs(est["T_d"] - own) <= max(3 * d.uncertainties.get("T_d", 0.0), OWN_DELAY_TOL * own))
         print(f"{seed:>6}  {_describe(dist):<62}{','.join(d.selected) or '-':<28}"
               f"{d.after['rms_y']:.5f}/{d.after['rms_u']:.5f}   {dt:5.1f}  {d.verdict.verdict} "
-              f"(share {100 * d.verdict.predictable_share['after']:.1f} %)", flush=True)
+              f"(share {100 * d.verdict.predictable_share['after']:.1f} %)"
+              + (f"; T_d = {1e3 * est['T_d']:.3f} ms: the emulator's own {1e3 * own:.2f} ms" if own_found else ""),
+              flush=True)
         out["null"].append({"seed": seed, "disturbance": dist, "selected": d.selected, "after": d.after,
                             "seconds": dt, "warnings": rec.warnings, "verdict": d.verdict.verdict,
-                            "predictable_share": d.verdict.predictable_share["after"]})
-    fp = sum(bool(r["selected"]) for r in out["null"])
+                            "predictable_share": d.verdict.predictable_share["after"], "estimates": est,
+                            "sigma": {p: d.uncertainties.get(p) for p in est}, "own_delay_s": own,
+                            "own_delay_found": own_found})
+    fp = false_positives(out["null"])
     if n_power:
         print(f"\nCatalogue effects on the first {n_power} draws:")
         print(f"{'effect':<22}{'seed':>6}  {'selected':<40}{'after/null u: free run':>23}{'20 ms ahead':>12}{'s':>6}")
@@ -247,12 +273,17 @@ def _checks(out: dict, n_null: int, fp: int, hits: int, n_catalogue: int) -> lis
     limits = [r for r in power if r["effect"] == "current_saturation" and r["case"] != r["effect"]]
     lim_ok = [r for r in limits if "current_saturation" in r["selected"] and r["estimates"].get("i_max")
               and abs(r["estimates"]["i_max"] / r["planted"]["i_max"] - 1) <= 0.05]
-    rows = [("false positives", n_null, _share(fp, n_null)),
-            ("power", n_catalogue, _share(hits, n_catalogue)),
-            ("spurious second effect", len(single), _share(len(spurious), len(single))),
-            ("'explained' beyond 1.2× the no-effect twin's error", len(power), str(len(loose))),
-            ("friction ≥ 2 % of the weight", len(friction), _share(len(fr_ok), len(friction))),
-            ("current limit found, i_max within 5 %", len(limits), _share(len(lim_ok), len(limits)))]
+    own = [r for r in out["null"] if r.get("own_delay_s", 0) > 0]
+    rows = [("false positives", n_null, _share(fp, n_null))]
+    if own:
+        rows.append(("the emulator's own computation delay found as a delay", len(own),
+                     _share(sum(r["own_delay_found"] for r in own), len(own))))
+    rows += [
+             ("power", n_catalogue, _share(hits, n_catalogue)),
+             ("spurious second effect", len(single), _share(len(spurious), len(single))),
+             ("'explained' beyond 1.2× the no-effect twin's error", len(power), str(len(loose))),
+             ("friction ≥ 2 % of the weight", len(friction), _share(len(fr_ok), len(friction))),
+             ("current limit found, i_max within 5 %", len(limits), _share(len(lim_ok), len(limits)))]
     return [{"criterion": c, "records": n, "measured": m, "target": TARGETS[c]} for c, n, m in rows]
 
 
@@ -263,7 +294,11 @@ def family_section(res: dict, emulator: str) -> str:
             f"{100 * LIMIT_SHARE[0]:.0f}–{100 * LIMIT_SHARE[1]:.0f} % of the samples and Coulomb friction of "
             f"{100 * FRICTION_SHARE[0]:.0f}–{100 * FRICTION_SHARE[1]:.0f} % of the weight. The default catalogue "
             "is tried. 'The no-effect twin' is the record of the same draw without the effect: its final 20 ms "
-            "prediction error of y stands for the true model's.", "",
+            "prediction error of y stands for the true model's."
+            + (" The independent emulator applies its PID's output a fraction of a sample late (`pid_offset`), a "
+               "real delay of its records: a `delay` found alone on a no-effect record within 3σ (or "
+               f"{100 * OWN_DELAY_TOL:.0f} %) of it is counted on its own row, not as a false positive."
+               if any(r.get("own_delay_s", 0) > 0 for r in res["null"]) else ""), "",
             benchdoc.table(["criterion", "records", "measured", "target"],
                            [[c["criterion"], c["records"], c["measured"], c["target"]] for c in res["checks"]]),
             "", "Records with an effect. *selected*: an effect followed by \"(or X)\" was chosen over X, which the "
@@ -276,10 +311,16 @@ def family_section(res: dict, emulator: str) -> str:
                              ", ".join(f"{k} = {v:.4g}" for k, v in r["estimates"].items() if v is not None) or "—",
                              r["verdict"], f"{r['after_over_null_prediction_y']:.2f}"] for r in res["power"]])]
     wrong = [r for r in res["null"] if r["selected"] or r["verdict"] != "no effect"]
+
+    def what(r: dict) -> str:
+        found = ", ".join(r["selected"])
+        if r.get("own_delay_found"):
+            found += (f": T_d = {1e3 * r['estimates']['T_d']:.3f} ± {1e3 * (r['sigma'].get('T_d') or 0):.3f} ms, the "
+                      f"emulator's own {1e3 * r['own_delay_s']:.2f} ms")
+        return f" ({found})" if r["selected"] else ""
+
     body += ["", "No-effect records whose verdict is not `no effect`: "
-             + ("none." if not wrong else "; ".join(f"seed {r['seed']}: {r['verdict']}"
-                                                    + (f" ({', '.join(r['selected'])})" if r["selected"] else "")
-                                                    for r in wrong) + ".")]
+             + ("none." if not wrong else "; ".join(f"seed {r['seed']}: {r['verdict']}{what(r)}" for r in wrong) + ".")]
     return "\n".join(body)
 
 
