@@ -106,9 +106,11 @@ def _held_out(probs: list[Problem], selected: Sequence[str], effect: str, start:
     fitm = [fit_blocks(p.rec.t) for p in probs]
     on_fit = [p.with_mask(m) for p, m in zip(probs, fitm)]
     parts = [BASELINE, *(CATALOGUE[e] for e in selected)]
-    without = {**start, **_joint_fit(on_fit, parts, start, say)}
-    with_it = {**without, **_joint_fit(on_fit, [*parts, CATALOGUE[effect]], {**without, **{
-        c.name: start[c.name] for c in CATALOGUE[effect].coords}}, say)}
+    # only the model's own parameters: the problems' base holds every other effect off
+    own = {c.name: start[c.name] for part in parts for c in part.coords}
+    without = {**own, **_joint_fit(on_fit, parts, own, say)}
+    s1 = {**without, **{c.name: start[c.name] for c in CATALOGUE[effect].coords}}
+    with_it = {**s1, **_joint_fit(on_fit, [*parts, CATALOGUE[effect]], s1, say)}
     held_res = [[residuals(p, v, ~m) for p, m in zip(probs, fitm)] for v in (without, with_it)]
     cost = [float(np.mean(np.concatenate(r) ** 2)) for r in held_res]
     n_eff = sum(min(effective_samples(r[:len(r) // 2]), effective_samples(r[len(r) // 2:])) for r in held_res[1])
