@@ -5,7 +5,8 @@ The stages, each the one-record engine's where it can be:
 
 1. each calibration record is diagnosed on its own (:func:`.pipeline.run`: its calibration, the
    effect search on its held-out blocks, its verdict): which effects the rig shows;
-2. the effects any record selected join one model, and the baseline's parameters and theirs are
+2. the effects every record selected join one model, and one that only some selected joins it when
+   it passes the search's held-out test on all records at once; the baseline's parameters and theirs are
    calibrated on all calibration records at once (least squares over every record's free-run
    residual, each record weighted by its own calibrated baseline's RMS, :func:`.problem.fit` over
    several problems); the baseline alone too (the "before" model), with ±1σ from the joint Jacobian;
