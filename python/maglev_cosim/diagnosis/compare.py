@@ -41,6 +41,7 @@ from threadpoolctl import threadpool_limits
 
 from ..loop import fast_loop
 from ..plant import fast
+from ..records.measured import true_runs
 from ..records.record import Record
 from . import blackbox as bb
 from .acceptance import fit_blocks
@@ -98,9 +99,8 @@ def _cell(v: float) -> str:
 
 
 def _runs(mask: np.ndarray) -> list[slice]:
-    """The contiguous runs of True in ``mask``."""
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
-    return [slice(a, b) for a, b in zip(edges[::2], edges[1::2])]
+    """The contiguous runs of True in ``mask``, as slices."""
+    return [slice(a, b) for a, b in true_runs(mask)]
 
 
 Boxes = dict  # horizon [s] -> (black box, black box reading u only up to the start), see fit_boxes

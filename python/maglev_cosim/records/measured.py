@@ -661,7 +661,7 @@ def levitation_segments(m: Measured, stops: float | Sequence[float], *, tol: flo
     if m.current is not None and coil_off > 0:
         top = float(np.percentile(np.abs(m.current), 99))
         low = np.abs(m.current) < coil_off * top
-        for a, b in _runs(low):
+        for a, b in true_runs(low):
             # a controller may cut the current for a few samples; off for longer, the ball falls
             if (b - a) * m.ts >= COIL_OFF_MIN:
                 why[a:b][why[a:b] == ""] = "coil off"
@@ -669,12 +669,12 @@ def levitation_segments(m: Measured, stops: float | Sequence[float], *, tol: flo
     pad = int(round(margin / m.ts))
     if pad and off.any():
         widened = np.zeros_like(off)
-        for a, b in _runs(off):
+        for a, b in true_runs(off):
             widened[max(a - pad, 0):min(b + pad, m.n)] = True
         off = widened
-    excluded = [(a, b, " / ".join(sorted(set(why[a:b]) - {""}))) for a, b in _runs(off)]
+    excluded = [(a, b, " / ".join(sorted(set(why[a:b]) - {""}))) for a, b in true_runs(off)]
     segs = []
-    for a, b in _runs(~off):
+    for a, b in true_runs(~off):
         if (b - a) * m.ts >= min_duration:
             segs.append(Segment(a, b))
         else:
@@ -683,7 +683,7 @@ def levitation_segments(m: Measured, stops: float | Sequence[float], *, tol: flo
     return segs, excluded
 
 
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+def true_runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """``[start, stop)`` of every run of True."""
     d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
     return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
