@@ -154,7 +154,7 @@ int maglev_replay_predict_corrected(const double *params, const MaglevFilter *fi
                                     double *innov_var, double *d_est, double *d_sd, char *msg, size_t msglen);
 
 /* The most horizons maglev_replay_predict_horizons and maglev_replay_predict_closed take in one call. */
-#define MAGLEV_MAX_HORIZONS 8
+#define MAGLEV_MAX_HORIZONS 64
 
 /* maglev_replay_predict_corrected at n_h horizons (samples, each >= 1; filter->horizon is not
  * used) in one pass: one trajectory from every stride-th sample to the longest horizon, read at

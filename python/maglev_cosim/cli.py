@@ -337,8 +337,8 @@ def _print_result(res: DiagnosisResult, recs: list[Recording] = ()) -> None:
             print(f"{c.label}: declared controller {c.controller}: actuator fit {c.actuator_fit:.1f} %{loops}; "
                   f"closed loop 20 ms ahead: {cl or 'no segment'}")
     if res.comparison:
-        print("median skill against 'stays put' (worst): model / black box / black box with the actuator signal "
-              "only up to the start / constant velocity")
+        print("median skill against 'stays put' (worst): model in closed loop / model driven by the actuator "
+              "signal / black box / black box with the actuator signal only up to the start / constant velocity")
         fmt = lambda v: "nan" if v is None else f"{v:+.2f}"  # noqa: E731
         for c in res.comparison:
             for h, k in c.horizons.items():     # one record's blocks: no worst to show beside the median

@@ -45,6 +45,7 @@ from ..records.measured import Measured, Segment, levitation_segments
 from ..records.record import RecordError
 from ..rigs import Rig
 from . import blackbox as bb
+from . import reaction
 from .metrics import nrmse_fit
 from .result import HorizonSkill, finite
 
@@ -82,6 +83,7 @@ class RigRecord:
     current: np.ndarray | None  #: measured coil current [A]
     position: np.ndarray   #: the record's position [m], its own convention
     segment: Segment
+    reference: np.ndarray | None = None  #: the reference as the plant's reading [MU] (None: the record has none)
 
 
 def prepare(rig: Rig, m: Measured, *, min_duration: float = 1.0) -> list[RigRecord]:
@@ -99,7 +101,8 @@ def prepare(rig: Rig, m: Measured, *, min_duration: float = 1.0) -> list[RigReco
         part = m.slice(s.start, s.stop)
         out.append(RigRecord(label=f"{m.label}[{part.t[0]:.2f}-{part.t[-1]:.2f} s]", ts=m.ts,
                              y=np.asarray(rig.reading(part.position)), u=np.asarray(rig.input_to_mu(part.drive)),
-                             current=part.current, position=part.position, segment=s))
+                             current=part.current, position=part.position, segment=s,
+                             reference=None if part.reference is None else np.asarray(rig.reading(part.reference))))
     return out
 
 
@@ -163,6 +166,24 @@ def predict_many(rig: Rig, r: RigRecord, params: PlantParams, horizons_s: Sequen
     return [{"y_pred": o["y_pred"][q], "i_pred": o["i_pred"][q], **rest} for q in range(len(hs))]
 
 
+def trajectories(rig: Rig, r: RigRecord, params: PlantParams, horizon: int, *,
+                 noise: dict[str, float] | None = None) -> tuple[np.ndarray, list[dict[str, np.ndarray]]]:
+    """The filter's predictions driven by the measured actuator signal from every sample, to
+    ``horizon`` samples ahead: ``traj[k, j]`` the reading predicted for ``k + j`` at ``k``
+    (``traj[:, 0]`` the measured reading; NaN where none ends), and :func:`predict_many`'s dicts
+    for ``j = 1..horizon`` (the same passes, :data:`~maglev_cosim.plant.fast.MAX_HORIZONS` a time)."""
+    n = len(r.y)
+    traj = np.full((n, horizon + 1), np.nan)
+    traj[:, 0] = r.y
+    outs: list[dict[str, np.ndarray]] = []
+    for j0 in range(1, horizon + 1, fast.MAX_HORIZONS):
+        js = range(j0, min(j0 + fast.MAX_HORIZONS, horizon + 1))
+        outs += predict_many(rig, r, params, [j * r.ts for j in js], noise=noise)
+    for j, o in enumerate(outs, start=1):
+        traj[:n - j, j] = o["y_pred"][j:]
+    return traj, outs
+
+
 def _valid(n: int, h: int, ts: float) -> np.ndarray:
     k = np.arange(n)
     return k >= h + int(round(SETTLE_S / ts))
@@ -209,18 +230,34 @@ def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float]
     else:
         cur = None
     series = bb.Series(r.position, r.current if r.current is not None else r.u, r.ts)
-    outs = _predict_all(rig, [(r, hs) for hs in HORIZONS_S], params, noise=noise)
-    for hs, o in zip(HORIZONS_S, outs):
-        h = _lag(r, hs)
-        ok = _valid(len(r.y), h + 10, r.ts) & np.isfinite(o["y_pred"])
+    lags = [_lag(r, hs) for hs in HORIZONS_S]
+    traj, every = trajectories(rig, r, params, max(lags), noise=noise)
+    outs = [every[h - 1] for h in lags]
+    try:
+        loop: reaction.ReactionPrediction | None = reaction.predict(r.y, r.u, r.reference, traj, lags, r.ts,
+                                                                           current=r.current)
+        out["identified_controller"] = loop.to_json()
+    except ValueError as e:     # too short to identify a controller: the model driven by the actuator signal
+        loop = None
+        out["identified_controller"] = {"missing": str(e)}
+    for q, (hs, o) in enumerate(zip(HORIZONS_S, outs)):
+        h = lags[q]
         y = r.y
+        y_loop = loop.y_pred[q] if loop is not None else o["y_pred"]
+        # the skills count where both model predictions end: the closed loop's on the starts whose
+        # window lies in one block of the cross-fitting (reaction.predict)
+        ok = _valid(len(r.y), h + 10, r.ts) & np.isfinite(o["y_pred"]) & np.isfinite(y_loop)
         stay = bb.stays_put(y, h)
         cv = bb.constant_velocity(y, h, r.ts)
-        entry = {"model": nrmse_fit(y[ok], o["y_pred"][ok]), "stays_put": nrmse_fit(y[ok], stay[ok]),
-                 "rms_y": float(np.sqrt(np.mean((y[ok] - o["y_pred"][ok]) ** 2))) if ok.any() else float("nan"),
+        entry = {"model": nrmse_fit(y[ok], y_loop[ok]), "stays_put": nrmse_fit(y[ok], stay[ok]),
+                 "model_measured_input": nrmse_fit(y[ok], o["y_pred"][ok]),
+                 "rms_y": float(np.sqrt(np.mean((y[ok] - y_loop[ok]) ** 2))) if ok.any() else float("nan"),
+                 "rms_y_measured_input": float(np.sqrt(np.mean((y[ok] - o["y_pred"][ok]) ** 2))) if ok.any()
+                 else float("nan"),
                  "constant_velocity": nrmse_fit(y[ok], cv[ok]),
-                 "skill_vs_stays_put": bb.skill(y, o["y_pred"], stay, ok),
-                 "skill": {"model": bb.skill(y, o["y_pred"], stay, ok),
+                 "skill_vs_stays_put": bb.skill(y, y_loop, stay, ok),
+                 "skill": {"model": bb.skill(y, y_loop, stay, ok),
+                           "model_measured_input": bb.skill(y, o["y_pred"], stay, ok),
                            "constant_velocity": bb.skill(y, cv, stay, ok)}}
         if black_box and hs in black_box:
             # the black box predicts the record's position: both are compared there too
@@ -232,7 +269,7 @@ def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float]
                 yp = black_box[("past", hs)].predict(series)
                 entry["skill"]["black_box_past"] = bb.skill(r.position, yp, bb.stays_put(r.position, h),
                                                             okb & np.isfinite(yp))
-            entry["skill"]["model_on_position"] = bb.skill(r.position, _to_position(rig, o["y_pred"]),
+            entry["skill"]["model_on_position"] = bb.skill(r.position, _to_position(rig, y_loop),
                                                            bb.stays_put(r.position, h), okb)
         out["position"][f"{hs * 1e3:g} ms"] = entry
         if cur is not None:
@@ -1096,9 +1133,10 @@ def comparison(calibration: Sequence[dict], validation: Sequence[dict]) -> dict:
 
 def comparison_table(comp: dict) -> list[str]:
     """The Markdown table of :func:`comparison`: one row per role and horizon, the median skill
-    (worst in brackets) of the model, the black box and "constant velocity"."""
-    lines = ["| records | horizon | model | black box | black box, actuator up to the start | constant velocity |",
-             "|---|---|---|---|---|---|"]
+    (worst in brackets) of the model in closed loop and driven by the actuator signal, the black
+    boxes and "constant velocity"."""
+    lines = ["| records | horizon | model (closed loop, identified controller) | model (driven by the actuator signal) "
+             "| black box | black box, actuator up to the start | constant velocity |", "|---|---|---|---|---|---|---|"]
     for role, c in comp.items():
         for h, v in c.items():
             if h != "segments":
@@ -1122,17 +1160,11 @@ def judge_against_black_box(verdict: str, comp: dict) -> tuple[str, list[str]]:
     why = ", ".join(f"{h}: model {v['model']:+.2f} against black box {v['black_box']:+.2f}" for h, v in lost)
     reasons = [f"the model predicts the gap worse than the black-box baseline fitted on the same calibration "
                f"segments at {', '.join(h for h, _ in lost)} (median skill over {figs['segments']} {role} "
-               f"segment(s): {why}). Either the model lacks something that acts on the gap's dynamics (the "
-               "force or the mechanics), or the black box reads from the actuator signal up to the predicted "
-               "instant what the controller knew of the gap (a controller with a state estimator, or a sensor "
-               "quieter inside the loop than in the record): a direct linear predictor never runs the unstable "
-               "plant, the model does"]
-    past = [(h, v["black_box_past"]) for h, v in lost if np.isfinite(v.get("black_box_past", np.nan))]
-    if past:
-        reasons.append("the same black box reading the actuator signal only up to the prediction's start reaches "
-                       + ", ".join(f"{p:+.2f} at {h}" for h, p in past) + ": the difference is what the black box "
-                       "reads of the controller's reaction after the start, which the true model driven by the "
-                       "actuator signal cannot use either (docs/diagnosis.md, \"Model against black box\")")
+               f"segment(s): {why}). The model's figure is its closed-loop prediction with the controller "
+               "identified from the record (docs/diagnosis.md, \"Model against black box\"): either the model lacks "
+               "something that acts on the gap's dynamics (the force or the mechanics), or the controller is not "
+               "the linear one the identification assumes (gain scheduling, saturation, a state estimator of "
+               "higher order), so that its reaction after the start is read only in part"]
     return ("explained in part" if verdict in ("explained", "no effect") else verdict), reasons
 
 

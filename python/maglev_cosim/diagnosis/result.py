@@ -140,12 +140,16 @@ class LocationEvidence:
 
 @dataclass
 class HorizonSkill:
-    """Median (and worst) skill against "stays put" at one horizon: the model, the black-box
-    baseline, the same black box reading the actuator signal only up to the prediction's start
-    (``black_box_past``), and "constant velocity" (> 0: better than standing still)."""
+    """Median (and worst) skill against "stays put" at one horizon (> 0: better than standing
+    still): the model in closed loop (``model``: with the declared controller, or with the one
+    identified from the record, :mod:`.reaction`), the model driven by the measured actuator signal
+    (``model_measured_input``), the black-box baseline, the same black box reading the actuator
+    signal only up to the prediction's start (``black_box_past``), and "constant velocity"."""
 
     model: float | None
     model_worst: float | None
+    model_measured_input: float | None
+    model_measured_input_worst: float | None
     black_box: float | None
     black_box_worst: float | None
     black_box_past: float | None
@@ -153,7 +157,7 @@ class HorizonSkill:
     constant_velocity: float | None
     constant_velocity_worst: float | None
 
-    WHO = ("model", "black_box", "black_box_past", "constant_velocity")
+    WHO = ("model", "model_measured_input", "black_box", "black_box_past", "constant_velocity")
 
     def to_json(self) -> Json:
         return {k: getattr(self, k) for w in self.WHO for k in (w, f"{w}_worst")}

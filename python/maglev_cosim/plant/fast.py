@@ -212,6 +212,11 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     return out
 
 
+#: The most horizons one call of :func:`predict_horizons` takes (``MAGLEV_MAX_HORIZONS`` in
+#: ``c/maglev_replay.h``; the C code refuses more with a message).
+MAX_HORIZONS = 64
+
+
 def predict_horizons(params: StartValues | Mapping[str, float] | None, y: np.ndarray, u: np.ndarray, *, ts: float,
                      q_force: float, f_force: float, r_sensor: float, horizons: Sequence[int], stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,

@@ -1,0 +1,120 @@
+"""Closed-loop prediction with a controller identified from the record (maglev_cosim.diagnosis.reaction):
+the identification, the reaction's gain, the cross-fitting, and on an emulator record the model with
+the identified controller against the model driven by u and the black box."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maglev_cosim.diagnosis import blackbox as bb
+from maglev_cosim.diagnosis import reaction
+from maglev_cosim.diagnosis.reaction import LinearController, reaction_gain
+from maglev_cosim.diagnosis.replay import _settled_at_first_reading, baseline_params, estimate_noise
+from maglev_cosim.plant import fast
+from maglev_cosim.records.record import read_record
+from maglev_cosim.records.synth import synth_record
+
+
+def test_an_arx_controller_is_identified_exactly():
+    rng = np.random.default_rng(3)
+    n = 4000
+    y, w, i = rng.normal(size=n), np.repeat(rng.normal(size=n // 200), 200), rng.normal(size=n)
+    a, b, d, g = np.array([0.5, -0.2]), np.array([1.5, -0.7, 0.1]), np.array([-0.4, 0.3]), np.array([0.2, 0.1, 0.0])
+    u = np.zeros(n)
+    for t in range(3, n):
+        u[t] = a @ u[t - 1:t - 3:-1] + b @ y[t:t - 3:-1] + d @ w[t:t - 2:-1] + g @ i[t:t - 3:-1] + 0.05
+    orders = {"u": 2, "y": 2, "w": 1, "i": 2}
+    ctl = LinearController.fit({"u": u, "y": y, "w": w, "i": i}, np.arange(3, n), orders)
+    assert np.allclose(ctl.coef["u"], a) and np.allclose(ctl.b, b) and np.allclose(ctl.coef["w"], d)
+    assert np.allclose(ctl.coef["i"], g) and ctl.c == pytest.approx(0.05)
+    assert ctl.residual_var < 1e-20 and ctl.lags == 2
+    assert np.abs(ctl.residuals({"u": u, "y": y, "w": w, "i": i})[3:]).max() < 1e-9
+    with pytest.raises(ValueError, match="too few"):
+        LinearController.fit({"u": u, "y": y}, np.arange(3, 20), orders)
+
+
+def test_the_reaction_gain_inverts_an_exact_controller_and_ignores_a_useless_one():
+    """r = B·e exactly (no residual): the gain gives e back; with a huge residual variance, nothing."""
+    rng = np.random.default_rng(4)
+    h = 6
+    b = np.array([2.0, -1.0, 0.3])
+    A = rng.normal(size=(h, h))
+    cov = A @ A.T + np.eye(h)
+    e = rng.normal(size=h)
+    B = np.zeros((h, h))
+    for m, bm in enumerate(b):
+        B += bm * np.eye(h, k=-m)
+    assert reaction_gain(b, cov, 1e-12) @ (B @ e) == pytest.approx(e, abs=1e-6)
+    assert np.abs(reaction_gain(b, cov, 1e12) @ (B @ e)).max() < 1e-9
+
+
+def test_a_controller_that_does_not_react_leaves_the_model_s_prediction():
+    """An actuator signal independent of the reading (noise): no trust factor lowers the fitting
+    blocks' error, so the prediction is the model's trajectory, unchanged."""
+    rng = np.random.default_rng(5)
+    n, H = 6000, 20
+    y = np.cumsum(rng.normal(size=n)) * 1e-3
+    traj = np.full((n, H + 1), np.nan)
+    for j in range(1, H + 1):
+        traj[:n - j, j] = y[:n - j] + 1e-3 * rng.normal(size=n - j)      # a model with its own errors
+    u = rng.normal(size=n)
+    out = reaction.predict(y, u, None, traj, [5, 20], 1e-3)
+    for q, h in enumerate((5, 20)):
+        ok = np.isfinite(out.y_pred[q])
+        assert ok.sum() > 1000
+        k = np.flatnonzero(ok) - h
+        assert out.y_pred[q][ok] == pytest.approx(traj[k, h])
+    assert all(t is None for row in out.trust for t in row)
+
+
+@pytest.fixture(scope="module")
+def emulated(tmp_path_factory):
+    """An emulator record without effects, the true model's trajectories driven by the recorded u
+    from every sample, 50 samples ahead."""
+    path = synth_record(tmp_path_factory.mktemp("rx") / "rec.csv", duration=8.0, seed=11)
+    rec = read_record(path)
+    params = baseline_params()
+    noise = estimate_noise(rec, params)
+    start, _ = _settled_at_first_reading(rec, params)
+    H = 50
+    traj = np.full((rec.n, H + 1), np.nan)
+    traj[:, 0] = rec.y
+    for j0 in range(1, H + 1, fast.MAX_HORIZONS):
+        js = list(range(j0, min(j0 + fast.MAX_HORIZONS, H + 1)))
+        o = fast.predict_horizons(start, rec.y, rec.u, ts=rec.ts, q_force=noise.q_force, f_force=noise.f_force,
+                                  r_sensor=noise.r_sensor, horizons=js, f_sensor=noise.f_sensor,
+                                  r_coloured=noise.r_coloured)
+        for q, j in enumerate(js):
+            traj[:rec.n - j, j] = o["y_pred"][q][j:]
+    return rec, traj
+
+
+def test_the_identified_controller_reads_the_reaction_the_model_driven_by_u_cannot(emulated):
+    """The record's PID, identified on the other blocks, turns the true model's open-loop 50 ms
+    prediction (behind the black box, tests/test_compare.py) into one ahead of the black box fitted
+    on the same blocks; at 5 ms the reaction has little to add and the model stays ahead."""
+    rec, traj = emulated
+    hs = (5, 20, 50)
+    out = reaction.predict(rec.y, rec.u, rec.w, traj, hs, rec.ts)
+    stay = {h: bb.stays_put(rec.y, h) for h in hs}
+    # the black box, fitted and judged two-fold on the same blocks as the controller
+    parity = (np.arange(rec.n) // int(round(reaction.BLOCK_S / rec.ts))) % 2
+    for q, h in enumerate(hs):
+        yb = np.full(rec.n, np.nan)
+        for f in (0, 1):
+            runs = [s for s in np.split(np.arange(rec.n), np.flatnonzero(np.diff(parity)) + 1) if parity[s[0]] == f]
+            box = bb.fit([bb.Series(rec.y[s], rec.u[s], rec.ts) for s in runs], h * rec.ts)
+            for s in np.split(np.arange(rec.n), np.flatnonzero(np.diff(parity)) + 1):
+                if parity[s[0]] != f:
+                    yb[s] = box.predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
+        driven = np.full(rec.n, np.nan)
+        driven[h:] = traj[:rec.n - h, h]
+        ok = np.isfinite(out.y_pred[q]) & np.isfinite(yb) & np.isfinite(driven)
+        assert ok.sum() > 2000
+        loop, box, drv = (bb.skill(rec.y, p, stay[h], ok) for p in (out.y_pred[q], yb, driven))
+        assert loop > box, (h, loop, box, drv)
+        assert loop >= drv - 0.02, (h, loop, drv)
+        if h == 50:
+            assert drv < box < loop and loop > 0.6, (loop, box, drv)
+    assert out.to_json()["orders"] == reaction.ORDERS
