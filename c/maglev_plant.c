@@ -60,6 +60,7 @@
     X(r_y, MAGLEV_PARAMETER, 0.0, -10.0, 10.0, "V/s", "Rate at which the sensor voltage's offset drifts, r_y*t added to Eq. 12 (the sensor electronics warming up; 0 = off)", "sensor_drift") \
     X(beta_F, MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "1", "Share of the force that follows the static force law through a second, slower lag T_F2 (eddy currents in the core; the ball feels (1 - beta_F)*F_fast + beta_F*F2, F_fast the force lag's output or the static force; 0 = off)", "eddy_lag") \
     X(T_F2, MAGLEV_PARAMETER, 0.01, T_F_MIN, 1.0, "s", "Time constant of the second force lag F2' = (F_s - F2)/T_F2 (used when beta_F > 0)", "eddy_lag") \
+    X(kappa_c, MAGLEV_PARAMETER, 0.0, -0.05, 0.05, "1/s", "Rate at which the force gain changes: the force law (Eq. 8, and the exponential law) times max(0, 1 + kappa_c*t) (the coil and magnet heating; 0 = off)", "force_gain_drift") \
     X(solver_step, MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step", "") \
     X(F, MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8", "")
 #endif
@@ -255,6 +256,13 @@ static double static_force(const MaglevPlant *m, double i, double x) {
     return P(m, k_c) * i * i / (gap * gap) * exponent_factor(m, gap); /* Eq. 8 */
 }
 
+/* Effect force_gain_drift: the factor max(0, 1 + kappa_c*t) on the force law at time t (the coil and
+ * magnet heating; a gain that has drifted to nothing stays nothing). */
+static double gain_drift(const MaglevPlant *m, double t) {
+    double g = 1.0 + P(m, kappa_c) * t;
+    return g > 0 ? g : 0.0;
+}
+
 /* Current at tau into a piece whose command is ic and whose start current is i0. */
 static double current_at(const MaglevPlant *m, double i0, double ic, double tau) {
     if (P(m, T_a) <= 0) return ic;
@@ -285,8 +293,9 @@ static double delayed_input(const MaglevPlant *m, double t) {
 #define COLD static
 #endif
 
-/* The RK4 state: the current is integrated only with a voltage drive (else it is given). */
-typedef struct { double x, v, F, i, F2; } Mech;
+/* The RK4 state: the current is integrated only with a voltage drive (else it is given); t is the
+ * simulation time (dt/dt = 1), which the force law needs with the effect force_gain_drift. */
+typedef struct { double x, v, F, i, F2, t; } Mech;
 
 /* phi_0..phi_4 of the exponential integrators at z <= 0: phi_0 = e^z, phi_(k+1) = (phi_k - 1/k!)/z.
  * Where |z| < 1 that recursion would cancel: phi_4 by its series, then phi_k = z*phi_(k+1) + 1/k!. */
@@ -350,12 +359,13 @@ typedef struct {
     MaglevPlant *cache;     /* the same plant: its caches of ETDRK4 and transient weights */
     int exact;              /* the current's transient enters RK4 through transient_squares */
     double beta;            /* beta_F: the share of the force behind the second lag (0: off) */
+    double kappa;           /* kappa_c: the force gain's drift (0: off) */
 } Piece;
 
 static Piece make_piece(MaglevPlant *m, double i0, double ic, double volts, long *work) {
     Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), P(m, F_c) / P(m, m_k),
                 P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work, m,
-                !voltage_drive(m) && P(m, T_a) > 0 && P(m, T_F) <= 0, P(m, beta_F)};
+                !voltage_drive(m) && P(m, T_a) > 0 && P(m, T_F) <= 0, P(m, beta_F), P(m, kappa_c)};
     return pc;
 }
 
@@ -365,10 +375,12 @@ HOT Mech deriv(const Piece *pc, double isq, Mech s, int contact) {
     const MaglevPlant *m = pc->m;
     Mech d;
     d.i = 0.0;
+    d.t = 1.0;
     if (pc->voltage) {
         d.i = coil_rate(m, pc->volts, s.i, s.x, contact ? 0.0 : s.v);
         isq = s.i * s.i;
     }
+    if (pc->kappa != 0) isq *= gain_drift(m, s.t); /* effect force_gain_drift: the whole force law scales */
     d.F2 = 0.0;
     if (pc->beta > 0) { /* effect eddy_lag: a share beta of the force behind the second lag T_F2 */
         double fs = force_gain(m, s.x) * isq, fast = P(m, T_F) > 0 ? s.F : fs;
@@ -401,7 +413,7 @@ HOT Mech deriv(const Piece *pc, double isq, Mech s, int contact) {
 }
 
 HOT Mech axpy(Mech s, double a, Mech d) {
-    Mech r = {s.x + a * d.x, s.v + a * d.v, s.F + a * d.F, s.i + a * d.i, s.F2 + a * d.F2};
+    Mech r = {s.x + a * d.x, s.v + a * d.v, s.F + a * d.F, s.i + a * d.i, s.F2 + a * d.F2, s.t + a * d.t};
     return r;
 }
 
@@ -416,6 +428,7 @@ HOT Mech rk4_plain(const Piece *pc, Mech s, double h, int contact, double qa, do
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
     r.F = s.F;
     r.i = s.i;
+    r.t = s.t + h;
     r.F2 = pc->beta > 0 ? s.F2 + h / 6 * (k1.F2 + 2 * k2.F2 + 2 * k3.F2 + k4.F2) : s.F2;
     if (pc->voltage) r.i = clip(s.i + h / 6 * (k1.i + 2 * k2.i + 2 * k3.i + k4.i), 0.0, P(pc->m, i_max));
     return r;
@@ -439,6 +452,7 @@ static Mech rk4_etd(const Piece *pc, Mech s, double h, int contact, double qa, d
     r.v = s.v + h / 6 * (k1.v + 2 * k2.v + 2 * k3.v + k4.v);
     r.F = c->e * s.F + c->f1 * k1.F + c->f2 * (k2.F + k3.F) + c->f3 * k4.F;
     r.i = s.i;
+    r.t = s.t + h;
     r.F2 = pc->beta > 0 ? s.F2 + h / 6 * (k1.F2 + 2 * k2.F2 + 2 * k3.F2 + k4.F2) : s.F2;
     if (pc->voltage) r.i = clip(s.i + h / 6 * (k1.i + 2 * k2.i + 2 * k3.i + k4.i), 0.0, P(pc->m, i_max));
     return r;
@@ -467,7 +481,9 @@ static Mech rk4(const Piece *pc, double tau, Mech s, double h, int contact) {
 
 static double force_now(const Piece *pc, double tau, Mech s) {
     const MaglevPlant *m = pc->m;
-    double fast = P(m, T_F) > 0 ? s.F : static_force(m, pc->voltage ? s.i : current_at(m, pc->i0, pc->ic, tau), s.x);
+    double fast = P(m, T_F) > 0 ? s.F
+                                : static_force(m, pc->voltage ? s.i : current_at(m, pc->i0, pc->ic, tau), s.x) *
+                                      gain_drift(m, s.t);
     return pc->beta > 0 ? (1.0 - pc->beta) * fast + pc->beta * s.F2 : fast;
 }
 
@@ -559,6 +575,7 @@ static void substep(const Piece *pc, double tau, Mech *s, int *contact, double h
 static int stays_on_stop(const Piece *pc, Mech s, int contact, double i_now) {
     const MaglevPlant *m = pc->m;
     if (!contact || s.v != 0.0 || pc->voltage) return 0; /* a voltage drive's current has no closed form */
+    if (pc->kappa != 0) return 0; /* a drifting force gain: the substeps follow it on the stop (no shortcut) */
     if ((P(m, T_F) > 0 || pc->beta > 0) && fabs(i_now - pc->ic) > FF_CURRENT_EPS) return 0;
     double w = P(m, m_k) * P(m, g), sign = contact == CONTACT_UPPER ? 1.0 : -1.0;
     if (pc->beta > 0) { /* each lag's output stays between its value now and the static force: the worst mix */
@@ -633,7 +650,7 @@ static void transient_squares(const Piece *pc, const MaglevTransient *w, double 
  * phi = i^2 - i_c^2, F takes g*int(e^(t/T_F)*phi)/T_F and v the difference that keeps the total
  * impulse g*int(phi), exact up to x's change during the transient. On a stop, the stop takes v's. */
 COLD void transient_impulse(const MaglevPlant *m, const Piece *pc, Mech *s, int contact) {
-    double T = P(m, T_a), ic = pc->ic, d = pc->i0 - pc->ic, g = force_gain(m, s->x);
+    double T = P(m, T_a), ic = pc->ic, d = pc->i0 - pc->ic, g = force_gain(m, s->x) * gain_drift(m, s->t);
     double I = (2 * ic * d + d * d / 2) * T;
     double r = 1.0 / T - 1.0 / P(m, T_F), J = 2 * ic * d / r + d * d / (r + 1.0 / T);
     s->F += g / P(m, T_F) * J;
@@ -696,7 +713,7 @@ typedef struct {
 static int integrate_piece(MaglevPlant *m, double len, double u_eff, long *work, Plan *plan) {
     enum { MAX_PARTS = 12 };
     Piece pc = make_piece(m, m->i, current_command(m, u_eff), coil_volts(m, u_eff), work);
-    Mech s = {m->x, m->v, m->F, m->i, m->F2};
+    Mech s = {m->x, m->v, m->F, m->i, m->F2, m->time};
     SetBy by;
     double hmax = substep_max(m, &by);
     double bounds[MAX_PARTS], hs[MAX_PARTS], tau = 0.0, di = fabs(pc.i0 - pc.ic), i_start = pc.i0;
@@ -928,13 +945,13 @@ static int start_state(MaglevPlant *m, double t0, double u0, char *msg, size_t l
     m->x = P(m, x_start);
     m->v = P(m, v_start);
     m->i = (P(m, T_a) > 0 || voltage_drive(m)) ? P(m, i_start) : current_command(m, u0);
-    m->F = P(m, T_F) > 0 ? static_force(m, m->i, m->x) : 0.0;
-    m->F2 = P(m, beta_F) > 0 ? static_force(m, m->i, m->x) : 0.0;
+    m->F = P(m, T_F) > 0 ? static_force(m, m->i, m->x) * gain_drift(m, t0) : 0.0;
+    m->F2 = P(m, beta_F) > 0 ? static_force(m, m->i, m->x) * gain_drift(m, t0) : 0.0;
     m->xs = m->x; /* the sensor has settled on the start position */
     m->contact = CONTACT_NONE;
     long work = 0;
     Piece pc = make_piece(m, m->i, m->i, coil_volts(m, u0), &work);
-    Mech s = {m->x, m->v, m->F, m->i, m->F2};
+    Mech s = {m->x, m->v, m->F, m->i, m->F2, t0};
     if (m->x >= P(m, x_max) && (m->v > 0 || (m->v == 0 && press(&pc, 0, s, CONTACT_UPPER) >= 0))) {
         m->contact = CONTACT_UPPER;
         m->v = 0;
@@ -1084,7 +1101,7 @@ double maglev_get(const MaglevPlant *m, MaglevVR vr) {
     case VR_i:
         return (P(m, T_a) > 0 || voltage_drive(m)) ? m->i : current_command(m, delayed_input(m, m->time));
     case VR_F: {
-        double fast = P(m, T_F) > 0 ? m->F : static_force(m, maglev_get(m, VR_i), m->x);
+        double fast = P(m, T_F) > 0 ? m->F : static_force(m, maglev_get(m, VR_i), m->x) * gain_drift(m, m->time);
         return P(m, beta_F) > 0 ? (1.0 - P(m, beta_F)) * fast + P(m, beta_F) * m->F2 : fast;
     }
     case VR_y: return clip(maglev_reading(m, m->xs, m->time), -MU_LIMIT, MU_LIMIT); /* Eq. 13 */

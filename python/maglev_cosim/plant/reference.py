@@ -70,13 +70,16 @@ class ReferencePlant:
         rate = (volts - p.R_c * i - i * dL_dx * v) / (L + i * dL_di)
         return 0.0 if (i <= 0 and rate < 0) or (i >= p.i_max and rate > 0) else rate
 
-    def _force(self, i: float, x: float) -> float:
+    def _force(self, i: float, x: float, t: float = 0.0) -> float:
+        """The static force law at time ``t``: Eq. 8 (and the exponential law), its gain drifting by
+        the factor ``max(0, 1 + kappa_c·t)`` (effect force_gain_drift: the coil and magnet warming)."""
         p = self.p
         gap = p.x_0 - x
+        heat = max(0.0, 1.0 + p.kappa_c * t)
         law_e = p.k_e * math.exp(-gap / p.z_e) * i * i  # the exponential law of other rigs
         if p.k_c == 0:  # the exponential law alone: the ball may touch the coil (gap 0)
-            return law_e
-        return p.k_c * i * i / gap**2 * ((p.x_0 - p.x_n) / gap) ** (p.n_F - 2.0) + law_e
+            return heat * law_e
+        return heat * (p.k_c * i * i / gap**2 * ((p.x_0 - p.x_n) / gap) ** (p.n_F - 2.0) + law_e)
 
     def _rhs(self, ic: float):
         p = self.p
@@ -88,7 +91,7 @@ class ReferencePlant:
                 di = self._coil(ic, i, x, 0.0 if self.mode else v)
             else:
                 di = (ic - i) / p.T_a if p.T_a > 0 else 0.0
-            fs = self._force(i if (p.T_a > 0 or self.volt) else ic, x)
+            fs = self._force(i if (p.T_a > 0 or self.volt) else ic, x, t)
             dF = (fs - F) / p.T_F if p.T_F > 0 else 0.0
             # the second, slower lag of a share beta_F of the force (effect eddy_lag)
             dF2 = (fs - F2) / p.T_F2 if p.beta_F > 0 else 0.0
@@ -106,9 +109,9 @@ class ReferencePlant:
         b = self.p.beta_F
         return (1.0 - b) * fast + b * F2 if b > 0 else fast
 
-    def _net(self, z: np.ndarray, ic: float) -> float:
+    def _net(self, z: np.ndarray, ic: float, t: float) -> float:
         p = self.p
-        force = z[3] if p.T_F > 0 else self._force(z[2] if (p.T_a > 0 or self.volt) else ic, z[0])
+        force = z[3] if p.T_F > 0 else self._force(z[2] if (p.T_a > 0 or self.volt) else ic, z[0], t)
         return self._felt(force, z[5]) - p.m_k * p.g
 
     def set_input(self, u: float) -> None:
@@ -142,10 +145,10 @@ class ReferencePlant:
         if p.T_a <= 0 and not self.volt:
             self.z[2] = ic
             if p.T_F <= 0:
-                self.z[3] = self._force(ic, self.z[0])
+                self.z[3] = self._force(ic, self.z[0], t0)
         t = t0
         while t1 - t > 1e-15:
-            if self.mode and self.mode * self._net(self.z, ic) < 0:
+            if self.mode and self.mode * self._net(self.z, ic, t) < 0:
                 # the net force jumped away from the stop at the piece's start (an algebraic
                 # current or force): no sign change left for the release event to catch
                 self.mode = 0
@@ -157,7 +160,7 @@ class ReferencePlant:
                 events = [hit_top, hit_bottom]
             else:
                 sign = self.mode
-                release = lambda _t, z: sign * self._net(z, ic)  # noqa: E731
+                release = lambda t_, z: sign * self._net(z, ic, t_)  # noqa: E731
                 release.terminal, release.direction = True, -1
                 events = [release]
             sol = solve_ivp(self._rhs(ic), (t, t1), self.z, method="DOP853", rtol=RTOL, atol=ATOL,
@@ -170,7 +173,7 @@ class ReferencePlant:
                     self.z[0] = p.x_max if top else p.x_min
                     self.z[1] = 0.0
                     stop = 1 if top else -1
-                    self.mode = stop if stop * self._net(self.z, ic) >= 0 else 0
+                    self.mode = stop if stop * self._net(self.z, ic, t) >= 0 else 0
                 else:
                     self.mode = 0
             else:
@@ -185,7 +188,7 @@ class ReferencePlant:
         xs = xs if p.T_y > 0 else x     # the sensor's lag (Eq. 12 reads x itself without it)
         if p.T_a <= 0 and not self.volt:
             i = self._command(self._delayed(self.time))
-        force = self._felt(F if p.T_F > 0 else self._force(i, x), F2)
+        force = self._felt(F if p.T_F > 0 else self._force(i, x, self.time), F2)
         yv = p.k_x * xs + p.y_0 + p.k_x2 * xs * (xs - p.x_cal) + p.A_d * math.sin(2 * math.pi * p.f_d * self.time + p.phi_d)
         yv += p.r_y * self.time         # the sensor's offset drifting since t = 0 (effect sensor_drift)
         y = min(max(p.k_AD * yv + p.y_MU0, -1.0), 1.0)

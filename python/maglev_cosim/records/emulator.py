@@ -22,8 +22,9 @@ converters of 10 to 16 bits (``bits``).
 Effects the catalogue also has, written here in the emulator's own way: ``force_exponent``
 (force law ``k_c'·i²/(x_0 − x)^n_F`` with ``k_c'`` keeping the 3.2 mm equilibrium),
 ``coulomb_friction`` (``F_c·tanh(v/0.1 mm/s)``), ``amplifier_dead_zone`` (no current while the
-amplifier's input is within ``±u_dz`` volts) and ``sensor_drift`` (the sensor voltage's offset
-creeping by ``r_y·t``).
+amplifier's input is within ``±u_dz`` volts), ``sensor_drift`` (the sensor voltage's offset
+creeping by ``r_y·t``) and ``force_gain_drift`` (the magnet warming: its force scaled by
+``1 + kappa_c·t``, taken at the middle of each substep).
 
 An effect the catalogue deliberately lacks, for honesty tests: ``slew_rate``, an amplifier whose
 current cannot change faster than ``di_max`` [A/s], at the actuator; and ``sensor_ripple``, a
@@ -78,6 +79,7 @@ class RigConfig:
     u_dz: float = 0.0           # amplifier_dead_zone [V]
     T_y: float = 0.0            # sensor_lag [s]: the sensor sees the position through a first-order lag
     r_y: float = 0.0            # sensor_drift [V/s]: the sensor's offset creeps while its electronics warm up
+    kappa_c: float = 0.0        # force_gain_drift [1/s]: the magnet's force gain changes as coil and core warm
     di_max: float = 0.0         # slew_rate [A/s] (outside the catalogue; 0 = off)
     A_r: float = 0.0            # sensor_ripple [V] (outside the catalogue; 0 = off)
     lambda_r: float = 5e-4      # its spatial period [m]
@@ -207,19 +209,21 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     def dac_at(j: int) -> float:
         return dac[j] if j >= 0 else u_hold_q
 
-    def integrate(span: float, u_val: float, steps: int) -> None:
+    def integrate(t0: float, span: float, u_val: float, steps: int) -> None:
         nonlocal x, v, i, F, xs, F2
         ic = command(u_val)
         if not lag_i and c.di_max <= 0:
             i = ic
         h = span / steps
         q_s = math.exp(-h / c.T_y) if c.T_y > 0 else 0.0
-        for _ in range(steps):
+        for j in range(steps):
             if not lag_i and c.di_max > 0:     # slew-limited current
                 i += min(max(ic - i, -c.di_max * h), c.di_max * h)
+            # the warming magnet (force_gain_drift): its gain over this substep, held at the substep's middle
+            warm = max(0.0, 1.0 + c.kappa_c * (t0 + (j + 0.5) * h)) if c.kappa_c else 1.0
             # derivatives of (x, v, i, F, F2)
             def d(xx: float, vv: float, ii: float, ff: float, f2: float) -> tuple[float, ...]:
-                fs = force(ii, xx)
+                fs = warm * force(ii, xx)
                 f_act = ff if lag_F else fs
                 if beta > 0:   # eddy currents: a share beta of the force answers late, through TF2
                     f_act = (1.0 - beta) * f_act + beta * f2
@@ -276,8 +280,8 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
         if r_delay > 0:
             n1 = max(1, int(round(nsub * r_delay / ts)))
             n2 = max(1, nsub - n1)
-            integrate(r_delay, dac_at(k - m_delay - 1), n1)
-            integrate(ts - r_delay, dac_at(k - m_delay), n2)
+            integrate(t, r_delay, dac_at(k - m_delay - 1), n1)
+            integrate(t + r_delay, ts - r_delay, dac_at(k - m_delay), n2)
         else:
-            integrate(ts, dac_at(k - m_delay), nsub)
+            integrate(t, ts, dac_at(k - m_delay), nsub)
     return {"t": np.arange(n) * ts, "w": np.asarray(w, float), **out}
