@@ -52,15 +52,17 @@ def section(res: dict, command: str, wall_s: float) -> str:
              f"{benchdoc.stamp(wall_s)} The command it runs is equivalent to:", "", "```", command, "```", "",
              f"Verdict: **{res['verdict']}**.", "",
              "Median skill against 'stays put' of the gap predicted ahead (worst segment in brackets): the model "
-             "(physics with its effects and its calibrated disturbance model, driven by the measured PWM duty), "
+             "in closed loop with the controller identified from the record (physics with its effects and its "
+             "calibrated disturbance model; the controller, a linear map from the gap, the reference, the current "
+             "and its own past to the PWM duty, fitted on one half of the record's 1 s blocks and used on the other, "
+             "reads the controller's reaction after the start: diagnosis/reaction.py, docs/diagnosis.md 'Model "
+             "against black box'), the same model driven by the measured PWM duty alone, "
              "the black-box baseline (one ridge regression per horizon on the last 30 ms of gap differences and "
              "the measured current and its square up to the predicted instant, fitted by the tool on the three "
-             "calibration records), the same black box with the current only up to the prediction's start (what "
-             "separates the two is the controller's reaction after the start, which the black box reads and a "
-             "physical model driven by the actuator signal cannot: docs/diagnosis.md, 'Model against black box') "
-             "and 'constant velocity'.", "", *real_rig.comparison_table(comp)]
-    lines += ["", "Per segment: the current from the PWM duty (fit %), and the skill of model / black box at each "
-              "horizon.", "", "| segment | role | current from PWM | 5 ms | 20 ms | 50 ms |", "|---|---|---|---|---|---|"]
+             "calibration records), the same black box with the current only up to the prediction's start, "
+"and 'constant velocity'.", "", *real_rig.comparison_table(comp)]
+    lines += ["", "Per segment: the current from the PWM duty (fit %), and the skill of model (closed loop, identified "
+              "controller) / black box at each horizon.", "", "| segment | role | current from PWM | 5 ms | 20 ms | 50 ms |", "|---|---|---|---|---|---|"]
     rows = [(s["label"], "calibration", s["after"]) for e in res["records"] for s in e["segments"]]
     rows += [(v["label"], "validation", v["after"]) for v in res["validation"]]
     for label, role, f in rows:

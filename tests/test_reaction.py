@@ -49,9 +49,10 @@ def test_the_reaction_gain_inverts_an_exact_controller_and_ignores_a_useless_one
     assert np.abs(reaction_gain(b, cov, 1e12) @ (B @ e)).max() < 1e-9
 
 
-def test_a_controller_that_does_not_react_leaves_the_model_s_prediction():
-    """An actuator signal independent of the reading (noise): no trust factor lowers the fitting
-    blocks' error, so the prediction is the model's trajectory, unchanged."""
+def test_a_controller_that_does_not_react_leaves_the_model_s_prediction_as_it_was():
+    """An actuator signal independent of the reading (noise): what the identification finds is
+    chance, and the trust chosen on other blocks keeps it from moving the prediction: the error
+    stays within 1 % of the model's own."""
     rng = np.random.default_rng(5)
     n, H = 6000, 20
     y = np.cumsum(rng.normal(size=n)) * 1e-3
@@ -62,10 +63,11 @@ def test_a_controller_that_does_not_react_leaves_the_model_s_prediction():
     out = reaction.predict(y, u, None, traj, [5, 20], 1e-3)
     for q, h in enumerate((5, 20)):
         ok = np.isfinite(out.y_pred[q])
-        assert ok.sum() > 1000
+        assert ok.sum() > 5000
         k = np.flatnonzero(ok) - h
-        assert out.y_pred[q][ok] == pytest.approx(traj[k, h])
-    assert all(t is None for row in out.trust for t in row)
+        own = np.sqrt(np.mean((y[ok] - traj[k, h]) ** 2))
+        loop = np.sqrt(np.mean((y[ok] - out.y_pred[q][ok]) ** 2))
+        assert abs(loop / own - 1) < 0.01, (h, loop, own)
 
 
 @pytest.fixture(scope="module")

@@ -15,9 +15,7 @@ module identifies it from the record and reads the reaction through it, as a mea
    prediction driven by the measured actuator signal) stands in for the readings not yet seen. The
    identified controller's residual ``r_j = u[k+j] − ARX(…, ŷ, …)`` is then, to first order, the
    controller's response to the model's error: ``r_j = Σ_m b_m·e[k+j−m] + ε_j`` with
-   ``e[k+i] = y[k+i] − ŷ[k+i]`` (zero up to ``k``). The controller's mean residual over the last
-   :data:`BIAS_S` before ``k`` (measured signals only) is taken off: a linear controller fitted at
-   one operating point is biased at another, and that bias is not the ball's doing.
+   ``e[k+i] = y[k+i] − ŷ[k+i]`` (zero up to ``k``).
 3. **The model's error, estimated** from ``r_1..r_h`` (the actuator signal up to the predicted
    instant, the information the black box reads) by Gaussian conditioning: with ``Σ`` the model's own
    error covariance over the horizon and ``B`` the lower-triangular Toeplitz matrix of the ``b_m``,
@@ -33,9 +31,8 @@ round. A fit sample or
 a start whose window reaches into the other parity is not used, so no prediction is judged on a
 reading its own correction was fitted on. The trust factor is chosen per horizon on the fitting
 blocks from :data:`TRUST` (each half of them judged with a controller fitted on the other half), or
-no correction at all when none lowers the error there, or when the reading does not lower the
-controller's residual on unseen samples (:data:`IDENTIFIED`: a loop with no excitation follows its
-own recurrence, from which no reaction to the reading can be identified): a controller
+no correction at all when none lowers the error there, or where the loop has no excitation (:data:`EXCITATION`: its actuator signal follows its own
+recurrence, from which no reaction to the reading can be identified): a controller
 the linear model does not describe (gain scheduling, saturation) gives way to the model driven by
 the actuator signal, instead of pulling the prediction off.
 
@@ -58,11 +55,9 @@ ORDERS = {"u": 10, "y": 10, "w": 3, "i": 10}
 BLOCK_S = 1.0
 #: Trust factors tried: the controller's residual variance assumed ``factor·σ²_one-step``.
 TRUST = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, 1e3, 1e4)
-#: The controller's residual is taken relative to its mean over this span before the start [s].
-BIAS_S = 0.010
-#: The reading must bring the controller's residual on unseen samples below this share of what it is
-#: without the reading, for the reaction to count as identified.
-IDENTIFIED = 0.8
+#: A controller whose actuator signal its own past (with the reference and the current) predicts on
+#: unseen samples to within this share of its variance has no excitation to identify a reaction from.
+EXCITATION = 1e-10
 #: Samples skipped at a record's start, while the filter that makes the trajectories settles [s].
 SETTLE_S = 0.2
 
@@ -136,16 +131,11 @@ class LinearController:
         out[t] = u[t] - self._value(signals, t)
         return out
 
-    def reaction(self, signals: dict[str, np.ndarray], traj: np.ndarray, starts: np.ndarray, h: int,
-                 bias_n: int = 1) -> np.ndarray:
+    def reaction(self, signals: dict[str, np.ndarray], traj: np.ndarray, starts: np.ndarray, h: int) -> np.ndarray:
         """``r[s, j−1]`` for ``j = 1..h`` from each of ``starts`` (module docstring, step 2): the
         measured ``u[k+j]`` minus what this controller makes of the measured signals and the model's
         trajectory ``traj[k, i]`` (the reading ``i`` samples after ``k``) in place of the readings
-        after ``k``; less the controller's mean residual over the last ``bias_n`` samples up to ``k``,
-        on measured signals only (the bias a linear controller has where the record's operating
-        point is not the one it was fitted at)."""
-        eps = self.residuals(signals)
-        bias = np.mean([eps[starts - i] for i in range(bias_n)], axis=0)
+        after ``k``."""
         y, u = signals["y"], signals["u"]
         R = np.empty((len(starts), h))
         for j in range(1, h + 1):
@@ -153,7 +143,7 @@ class LinearController:
             v = self._value(signals, t, skip="y")
             for m, b in enumerate(self.b):
                 v += b * (traj[starts, j - m] if j - m > 0 else y[t - m])
-            R[:, j - 1] = u[t] - v - bias
+            R[:, j - 1] = u[t] - v
         return R
 
     def to_json(self) -> dict:
@@ -186,7 +176,7 @@ class ReactionPrediction:
     trust: list[list[float | None]]
     controllers: list[LinearController]
     fit_rms: list[list[dict[str, float]]] = field(default_factory=list)
-    identified: list[dict] = field(default_factory=list)    #: per fitting fold: the reading's share, :data:`IDENTIFIED`
+    identified: list[dict] = field(default_factory=list)    #: per fitting fold: unseen residuals, excitation
 
     def to_json(self) -> dict:
         return {"horizons": list(self.horizons), "trust": self.trust, "identified": self.identified, "block_s": BLOCK_S, "orders": dict(ORDERS),
@@ -240,11 +230,10 @@ def predict(y: np.ndarray, u: np.ndarray, w: np.ndarray | None, traj: np.ndarray
     if traj.shape[0] != n or traj.shape[1] <= H:
         raise ValueError(f"traj has shape {traj.shape}, needs ({n}, > {H})")
     lag = max(orders[k] for k in signals)
-    bias_n = max(1, int(round(BIAS_S / ts)))
     nb = max(1, int(round(BLOCK_S / ts)))
     block = np.arange(n) // nb
     parity = _split(int(block[-1]) + 1, 0)[block]
-    back = lag + bias_n                 # what a start reads before itself: the bias's span and its lags
+    back = lag                          # what a start reads before itself: the controller's lags
     skip = max(back, int(round(SETTLE_S / ts)))
     ks = np.arange(skip, n - H)
     # a start is used when its whole window (what it reads before, the horizon after) lies in one block
@@ -280,21 +269,19 @@ def predict(y: np.ndarray, u: np.ndarray, w: np.ndarray | None, traj: np.ndarray
             rows_s, other = fit_rows[half[fit_rows] == s], fit_rows[half[fit_rows] != s]
             sub = LinearController.fit(signals, rows_s, orders)
             at = half[fit_k] != s
-            inner.append((sub, at, sub.reaction(signals, traj, fit_k[at], H, bias_n)))
+            inner.append((sub, at, sub.reaction(signals, traj, fit_k[at], H)))
             unseen.append(float(np.nanmean(sub.residuals(signals)[other] ** 2)))
             blind.append(float(np.nanmean(LinearController.fit(without_y, rows_s, orders).residuals(without_y)[other] ** 2)))
         # the residual variance the trust scales: the controller's on samples it was not fitted on
         # (a fit that is exact in-sample may be far from exact elsewhere)
         var = max(ctl.residual_var, float(np.mean(unseen)), 1e-300)
-        # the reaction to the reading is identified only where the reading tells the actuator signal
-        # something its own past (and the reference, the current) does not, on samples the fit did
-        # not see: a loop without excitation obeys its own recurrence, and its "b" mean nothing
-        # (and a signal its own past predicts to rounding, 1e-10 of its variance, has no excitation at all)
-        identified = (float(np.mean(unseen)) < IDENTIFIED * float(np.mean(blind))
-                      and float(np.mean(blind)) > 1e-10 * float(np.var(u[fit_rows])))
+        # a loop without excitation obeys its own recurrence: the actuator signal's own past (with the
+        # reference and the current) predicts it to rounding on unseen samples, and the "b" fitted
+        # beside it mean nothing
+        identified = float(np.mean(blind)) > EXCITATION * float(np.var(u[fit_rows]))
         identifies.append({"unseen_var": float(np.mean(unseen)), "unseen_var_without_y": float(np.mean(blind)),
                            "identified": identified})
-        r_use = ctl.reaction(signals, traj, use_k, H, bias_n)
+        r_use = ctl.reaction(signals, traj, use_k, H)
         for q, h in enumerate(horizons):
             cov = E[:, :h].T @ E[:, :h] / len(E)
             own = float(np.sqrt(np.mean(E[:, h - 1] ** 2)))
