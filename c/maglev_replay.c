@@ -63,6 +63,21 @@ int maglev_replay_point(const double *params, double x, double i, MaglevPoint *o
     return 0;
 }
 
+int maglev_replay_readings(const double *params, const double *x, size_t n, double t, double *y, char *msg,
+                           size_t len) {
+    MaglevPlant m;
+    if (maglev_replay_check_params(params, msg, len)) return -1;
+    load(&m, params, msg, len);
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(x[k])) {
+            snprintf(msg, len, "position x = %g m is not finite", x[k]);
+            return -1;
+        }
+        y[k] = maglev_reading(&m, x[k], t);
+    }
+    return 0;
+}
+
 int maglev_replay_positions(const double *params, const double *y, size_t n, double t, double *x, char *msg,
                             size_t len) {
     MaglevPlant m;

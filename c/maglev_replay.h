@@ -199,6 +199,11 @@ typedef struct {
 
 int maglev_replay_point(const double *params, double x, double i, MaglevPoint *out, char *msg, size_t msglen);
 
+/* The noise-free readings y [MU] at time t [s] of n positions x [m] (MaglevPoint's y, one call for a
+ * record). Returns 0, or -1 with a message (a position that is not finite). */
+int maglev_replay_readings(const double *params, const double *x, size_t n, double t, double *y, char *msg,
+                           size_t msglen);
+
 /* The position between the stops [m] where the model reads y [MU] at time t [s], for n readings;
  * readings beyond the travel give the nearest stop. Returns 0, or -1 with a message. */
 int maglev_replay_positions(const double *params, const double *y, size_t n, double t, double *x,
