@@ -459,9 +459,10 @@ static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS]
 
 static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
     if (!f || !(f->q_force > 0) || !isfinite(f->q_force) || !(f->f_force > 0) || !isfinite(f->f_force) ||
-        !(f->r_sensor > 0) || !isfinite(f->r_sensor) || f->horizon < 0 || f->stride < 1) {
+        !(f->r_sensor > 0) || !isfinite(f->r_sensor) || f->horizon < 0 || f->stride < 1 || f->offset < 0 ||
+        f->offset >= f->stride) {
         snprintf(msg, len, "invalid filter settings (q_force > 0 N, f_force > 0 Hz, r_sensor > 0 MU, "
-                 "horizon >= 0, stride >= 1)");
+                 "horizon >= 0, stride >= 1, 0 <= offset < stride)");
         return -1;
     }
     if (!(f->f_sensor >= 0) || !isfinite(f->f_sensor)) {
@@ -586,7 +587,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
          * each end where the record allows, the same predictions as one call per horizon) */
         int h_run = h_max;
         if (n_h > 1 && k + (size_t)h_run >= n) h_run = (int)(n - 1 - k);
-        if (h_run > 0 && k % (size_t)f->stride == 0 && k + (size_t)h_run < n) {
+        if (h_run > 0 && k % (size_t)f->stride == (size_t)f->offset && k + (size_t)h_run < n) {
             MaglevPlant cur;
             CtlState pp = cs;
             double dd = d, cc = c, uin = u[k], yj = 0.0;

@@ -104,6 +104,7 @@ typedef struct {
                         * regression on the measured current would use it), 0 by the actuator signal */
     double f_sensor;   /* [Hz] corner of the coloured part of the sensor noise (>= 0; 0: white only) */
     double r_coloured; /* [MU] RMS of the coloured part (> 0 when f_sensor > 0; unused when f_sensor = 0) */
+    int offset;      /* the predictions start at the samples k with k % stride == offset (0 <= offset < stride) */
 } MaglevFilter;
 
 /* A located correction at the mechanics: a force on the ball [N] (positive: along x, upward in

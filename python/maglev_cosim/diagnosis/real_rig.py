@@ -127,11 +127,12 @@ def check_units(rig: Rig, m: Measured) -> None:
 
 #: The longest RK4 substep [s] of the replays (the plant's ``solver_step`` where it is longer; the
 #: plant shortens it further where a force lag, a friction or the coil's time constant needs it). The
-#: FMU's default of 0.1 ms is set for the CE152's fast dynamics; on a 1 kHz record 0.25 ms moves the
-#: gap predicted 20 and 50 ms ahead by under 1e-7 MU (the Inteco MPC step record, calibrated model:
-#: 2e-8 MU against a prediction error of 0.028 MU RMS and a quantisation step of 3.7e-4 MU) and takes
-#: 40 % less time. The calibrated parameters and the calibrated FMU keep the plant's own step.
-REPLAY_SOLVER_STEP = 2.5e-4
+#: FMU's default of 0.1 ms is set for the CE152's fast dynamics; on the 1 kHz Inteco records 0.5 ms
+#: moves the gap predicted 5 to 50 ms ahead by under 5e-8 MU and the current by under 3e-7 A (the MPC
+#: step and the LQI stairs records, the benchmark's calibrated model: against a 50 ms prediction error
+#: of 0.006 to 0.011 MU RMS, a position step of 3.7e-4 MU and 10 mA of current noise) and takes a third
+#: of the time. The calibrated parameters and the calibrated FMU keep the plant's own step.
+REPLAY_SOLVER_STEP = 5e-4
 
 
 def _start(rig: Rig, r: RigRecord, params: PlantParams) -> PlantParams:
@@ -153,7 +154,7 @@ def noise_defaults(rig: Rig, params: PlantParams) -> dict[str, float]:
 #: stages ask for the same replay more than once (a cost on the even blocks and on the odd ones of
 #: one parameter set, the start of a fit and its first step, a candidate's fitted value and its
 #: held-out cost). About 1 MB each.
-REPLAY_CACHE_SIZE = 96
+REPLAY_CACHE_SIZE = 64
 _replays: OrderedDict = OrderedDict()
 _replays_lock = threading.Lock()
 
@@ -193,16 +194,17 @@ def _cached(key: tuple, compute):
 
 
 def predict(rig: Rig, r: RigRecord, params: PlantParams, horizon_s: float, *, use_current: bool = True,
-            stride: int = 1, noise: dict[str, float] | None = None) -> dict[str, np.ndarray]:
-    """``y_pred`` [MU] and ``i_pred`` [A] ``horizon_s`` ahead (NaN where no prediction ends)."""
+            stride: int = 1, noise: dict[str, float] | None = None, offset: int = 0) -> dict[str, np.ndarray]:
+    """``y_pred`` [MU] and ``i_pred`` [A] ``horizon_s`` ahead (NaN where no prediction ends), from the
+    samples ``k`` with ``k % stride == offset``."""
     nz = noise or noise_defaults(rig, params)
     h = max(1, int(round(horizon_s / r.ts)))
     start = _start(rig, r, params)
-    key = ("one", _fingerprint(r), fast.param_vector(start).tobytes(), _noise_key(nz), h, stride, use_current)
+    key = ("one", _fingerprint(r), fast.param_vector(start).tobytes(), _noise_key(nz), h, stride, offset, use_current)
     return _cached(key, lambda: fast.predict_measured(
         start, r.y, r.u, ts=r.ts, q_force=nz["q_force"], f_force=nz["f_force"], r_sensor=nz["r_sensor"], horizon=h,
         stride=stride, current=r.current if use_current else None, r_current=nz["r_current"],
-        correction=nz.get("correction")))
+        correction=nz.get("correction"), offset=offset))
 
 
 def predict_many(rig: Rig, r: RigRecord, params: PlantParams, horizons_s: Sequence[float], *, stride: int = 1,
@@ -340,14 +342,24 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
         ok = _valid(len(r.y), 1, r.ts) & np.isfinite(o["i_pred"])
         return o["i_pred"][ok], r.current[ok]
 
+    # the residuals take every third sample from the first one the figures count (_valid): the
+    # predictions are made from those alone (offset), the filter still follows every sample
+    first = {id(r): int(np.argmax(_valid(len(r.y), 1, r.ts))) for r in use}
+    spread = {id(r): max(float(np.std(r.current[_valid(len(r.y), 1, r.ts)])), 1e-9) for r in use}
+
+    def every_third(p: PlantParams, r: RigRecord) -> tuple[np.ndarray, np.ndarray]:
+        o = predict(rig, r, p, r.ts, use_current=False, noise=nz, stride=3, offset=(first[id(r)] - 1) % 3)
+        ok = _valid(len(r.y), 1, r.ts) & np.isfinite(o["i_pred"])
+        return o["i_pred"][ok], r.current[ok]
+
     def resid(z: np.ndarray) -> np.ndarray:
         try:
             p = make(z)
             p.validate()
             parts = []
             for r in use:
-                ip, im = currents(p, r)
-                parts.append((ip - im)[::3] / max(float(np.std(im)), 1e-9) / np.sqrt(len(ip[::3]) * len(use)))
+                ip, im = every_third(p, r)
+                parts.append((ip - im) / spread[id(r)] / np.sqrt(len(ip) * len(use)))
             return np.nan_to_num(np.concatenate(parts), nan=10.0, posinf=10.0, neginf=-10.0)
         except ValueError:
             return np.full(sum(len(r.y) // 3 + 1 for r in use), 10.0)
@@ -1345,6 +1357,18 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     noise = noise_defaults(rig, params)
     fit_on = [r for r, why in zip(segs, info) if not why]
     mech = mechanics_names(params)
+
+    def fit_black_box() -> dict:
+        series = [bb.Series(r.position, r.current if r.current is not None else r.u, r.ts) for r in fit_on]
+        out = {hs: bb.fit(series, hs) for hs in HORIZONS_S}
+        out.update({("past", hs): bb.fit(series, hs, future=False) for hs in HORIZONS_S})
+        return out
+
+    # the black box needs the records alone: it is fitted beside the calibration (numpy's products
+    # release the GIL, and a single segment's fit leaves a core free)
+    background = ThreadPoolExecutor(max_workers=1)
+    black_box_job = background.submit(fit_black_box) if fit_on else None
+    background.submit(_load_matplotlib)   # the plots' library, loaded while the replays run
     if fit_on:
         # two stages, each on the signal its parameters act on: the coil on the current computed
         # from the actuator signal, then the force law, the mechanics' terms and the filter's
@@ -1395,21 +1419,19 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     if fit_on:
         say(f"fitting the black-box baseline (direct ridge predictors at {', '.join(f'{h * 1e3:g}' for h in HORIZONS_S)}"
             " ms) on the same segments")
-        series = [bb.Series(r.position, r.current if r.current is not None else r.u, r.ts) for r in fit_on]
         try:
-            black_box = {hs: bb.fit(series, hs) for hs in HORIZONS_S}
-            black_box.update({("past", hs): bb.fit(series, hs, future=False) for hs in HORIZONS_S})
+            black_box = black_box_job.result()
         except ValueError as e:
             result["black_box_error"] = str(e)
         result["black_box"] = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
                                                     "features": len(p.coef)}
                                   for hs, p in black_box.items() if not isinstance(hs, tuple)}
+    background.shutdown()
 
     def calibration_segment(r: RigRecord) -> dict:
         say(f"figures of {r.label}")
         pr, own = own_models.get(id(r)) or _own_coil(rig, r, params, cal)
-        before, after = figures(rig, r, rig.params), figures(rig, r, pr, noise, black_box)
-        seg = {"label": r.label, "before": before, "after": after, "own_coil": own}
+        seg = {"label": r.label, "before": None, "after": figures(rig, r, pr, noise, black_box), "own_coil": own}
         if per_record and cal and len(segs) > 1 and not lacking[id(r)]:
             # the force law's gain on this record alone (the rest held): its spread between
             # records is a finding, not noise
@@ -1424,16 +1446,35 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
         m, r, fb = item
         say(f"validation figures of {r.label}")
         pr, own = _own_coil(rig, r, params, cal)
-        return {"file": str(m.path), "label": r.label, "before": figures(rig, r, rig.params),
+        return {"file": str(m.path), "label": r.label, "before": None,
                 "after": figures(rig, r, pr, noise, black_box), "warnings": m.warnings,
                 "force_balance_calibrated": fb, "own_coil": own}
 
-    # every segment's figures, own coil and own force gain are independent of the others': they
-    # run side by side on the machine's cores (:func:`_map`), in one list so that both keep busy
+    def job(w: tuple[str, object]):
+        kind, x = w
+        if kind == "cal":
+            return calibration_segment(x)
+        if kind == "val":
+            return validation_segment(x)
+        if kind == "before":
+            return figures(rig, x, rig.params)
+        # "plot": the replays of prediction.png (_plots), kept by _cached
+        predict(rig, x, params, PLOT_HORIZON_S, noise=noise)
+        predict(rig, x, params, x.ts, use_current=False, noise=noise)
+        return None
+
+    # every segment's figures (before and after calibration), own coil and own force gain, and the
+    # replays of the plots, are independent of each other: they run side by side on the machine's
+    # cores (:func:`_map`), in one list so that both keep busy
     held_items = [(m, r, fb) for m, rs in held for fb in [force_balance(rig, m, params)] for r in rs]
-    work = [("cal", r) for _, rs in train for r in rs] + [("val", it) for it in held_items]
-    done = _map(lambda w: calibration_segment(w[1]) if w[0] == "cal" else validation_segment(w[1]), work)
-    cal_segs, result["validation"] = done[: len(segs)], done[len(segs):]
+    every_seg = segs + [r for _, r, _ in held_items]
+    work = ([("cal", r) for r in segs] + [("val", it) for it in held_items] + [("before", r) for r in every_seg]
+            + [("plot", r) for r in segs[:1]])
+    done = _map(job, work)
+    n_seg = len(every_seg)
+    for d, b in zip(done[:n_seg], done[n_seg: 2 * n_seg]):
+        d["before"] = b
+    cal_segs, result["validation"] = done[: len(segs)], done[len(segs): n_seg]
     figs_after = []
     k = 0
     for m, rs in train:
@@ -1809,6 +1850,8 @@ def _markdown(res: dict, plots: list[Path]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The horizon [s] prediction.png shows.
+PLOT_HORIZON_S = 0.020
 #: Coherence below which the measured frequency response is drawn faded (not a measurement).
 MIN_COHERENCE = 0.3
 #: Width of each window of the prediction plot [s].
@@ -1835,6 +1878,14 @@ def event_windows(r: RigRecord, y_pred: np.ndarray, h: int) -> list[tuple[str, i
     return out
 
 
+def _load_matplotlib() -> None:
+    """Imports matplotlib with the backend :func:`_plots` sets (a second of imports, done ahead)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # noqa: F401
+
+
 def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, noise: dict[str, float] | None = None,
            black_box: dict | None = None, figs: Sequence[dict] = ()) -> list[Path]:
     import matplotlib
@@ -1844,7 +1895,7 @@ def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, nois
 
     r = segs[0]
     written = []
-    hs = 0.020
+    hs = PLOT_HORIZON_S
     h = _lag(r, hs)
     o = predict(rig, r, params, hs, noise=noise)
     oc = predict(rig, r, params, r.ts, use_current=False, noise=noise)
