@@ -167,6 +167,15 @@ int maglev_replay_predict_horizons(const double *params, const MaglevFilter *fil
                                    double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
                                    char *msg, size_t msglen);
 
+/* maglev_replay_predict_horizons from the samples k with starts[k] != 0 alone (besides k % stride ==
+ * offset; starts holds n flags, NULL: every one): the same predictions where made, NaN elsewhere; the
+ * filter still follows every sample. A cost read on some samples only needs no other predictions. */
+int maglev_replay_predict_masked(const double *params, const MaglevFilter *filter, const MaglevCorrection *corr,
+                                 double ts, const double *y, const double *u, const double *i_meas,
+                                 double r_current, size_t n, int n_h, const int *horizons,
+                                 const unsigned char *starts, double *y_pred, double *i_pred, double *innov,
+                                 double *innov_var, double *d_est, double *d_sd, char *msg, size_t msglen);
+
 /* The closed loop predicted at n_h horizons (as maglev_replay_predict_horizons) with a controller:
  * the filter follows the measured y (and the measured current i_meas, may be NULL) driven by the
  * measured u; from every stride-th sample the plant and the controller run on their own predicted

@@ -208,10 +208,11 @@ def predict(rig: Rig, r: RigRecord, params: PlantParams, horizon_s: float, *, us
 
 
 def predict_many(rig: Rig, r: RigRecord, params: PlantParams, horizons_s: Sequence[float], *, stride: int = 1,
-                 noise: dict[str, float] | None = None) -> list[dict[str, np.ndarray]]:
+                 noise: dict[str, float] | None = None, starts: np.ndarray | None = None) -> list[dict[str, np.ndarray]]:
     """:func:`predict` at each of ``horizons_s`` in one pass of the filter (one trajectory to the
     longest horizon, read at each: the same predictions as one call per horizon, at the cost of the
-    longest alone); one dict per horizon (``d``, ``d_sd``, ``innov`` shared)."""
+    longest alone); one dict per horizon (``d``, ``d_sd``, ``innov`` shared). ``starts``: flags of the
+    samples to predict from (besides the stride), None: all."""
     nz = noise or noise_defaults(rig, params)
     hs = [max(1, int(round(h / r.ts))) for h in horizons_s]
     start = _start(rig, r, params)
@@ -219,11 +220,13 @@ def predict_many(rig: Rig, r: RigRecord, params: PlantParams, horizons_s: Sequen
     def compute() -> list[dict[str, np.ndarray]]:
         o = fast.predict_horizons(start, r.y, r.u, ts=r.ts, q_force=nz["q_force"], f_force=nz["f_force"],
                                   r_sensor=nz["r_sensor"], horizons=hs, stride=stride, current=r.current,
-                                  r_current=nz["r_current"], correction=nz.get("correction"))
+                                  r_current=nz["r_current"], correction=nz.get("correction"), starts=starts)
         rest = {k: v for k, v in o.items() if k not in ("y_pred", "i_pred")}
         return [{"y_pred": o["y_pred"][q], "i_pred": o["i_pred"][q], **rest} for q in range(len(hs))]
 
-    key = ("many", _fingerprint(r), fast.param_vector(start).tobytes(), _noise_key(nz), tuple(hs), stride)
+    flags = None if starts is None else hashlib.blake2b(np.packbits(np.asarray(starts, bool)).tobytes(),
+                                                        digest_size=16).digest()
+    key = ("many", _fingerprint(r), fast.param_vector(start).tobytes(), _noise_key(nz), tuple(hs), stride, flags)
     return _cached(key, compute)
 
 
@@ -506,16 +509,18 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
 
 
 def _predict_all(rig: Rig, jobs: Sequence[tuple[RigRecord, float]], params: PlantParams, *, stride: int = 1,
-                 noise: dict[str, float] | None = None) -> list[dict[str, np.ndarray]]:
+                 noise: dict[str, float] | None = None, starts=None) -> list[dict[str, np.ndarray]]:
     """:func:`predict` for every (segment, horizon) of ``jobs``: each segment's horizons in one pass
     (:func:`predict_many`), the segments on the machine's cores (:func:`_map`). ``params``: one
-    parameter set, or a function of the segment (each segment's own model)."""
+    parameter set, or a function of the segment (each segment's own model). ``starts``: a function of
+    the segment giving its flags of :func:`predict_many` (None: every start)."""
     order: dict[int, tuple[RigRecord, list[float]]] = {}
     for r, hs in jobs:
         order.setdefault(id(r), (r, []))[1].append(hs)
     groups = list(order.values())
     of = params if callable(params) else (lambda r: params)
-    done = _map(lambda g: predict_many(rig, g[0], of(g[0]), g[1], stride=stride, noise=noise), groups)
+    done = _map(lambda g: predict_many(rig, g[0], of(g[0]), g[1], stride=stride, noise=noise,
+                                       starts=starts(g[0]) if starts else None), groups)
     got = {(id(g[0]), hs): o for g, outs in zip(groups, done) for hs, o in zip(g[1], outs)}
     return [got[(id(r), hs)] for r, hs in jobs]
 
@@ -623,7 +628,8 @@ def prediction_cost(rig: Rig, records: Sequence[RigRecord], params: PlantParams,
     selects it)."""
     sums = {"y": [0.0, 0], "i": [0.0, 0]}
     jobs = [(r, hs) for r in records for hs in horizons_s]
-    for (r, hs), o in zip(jobs, _predict_all(rig, jobs, params, stride=stride, noise=noise)):
+    starts = None if parity is None else (lambda r: _parity_starts(r, horizons_s, parity))
+    for (r, hs), o in zip(jobs, _predict_all(rig, jobs, params, stride=stride, noise=noise, starts=starts)):
         h = _lag(r, hs)
         ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"])
         if parity is not None:
@@ -640,6 +646,20 @@ def prediction_cost(rig: Rig, records: Sequence[RigRecord], params: PlantParams,
     out = {name: s / n if n else float("nan") for name, (s, n) in sums.items()}
     used = [v for v in out.values() if np.isfinite(v)]
     out["total"] = float(np.mean(used)) if used else float("inf")
+    return out
+
+
+def _parity_starts(r: RigRecord, horizons_s: Sequence[float], parity: int) -> np.ndarray:
+    """Flags of the samples whose prediction ends, at one of ``horizons_s`` at least, on a sample that
+    :func:`prediction_cost` reads for ``parity``: the others' predictions would be made for nothing
+    (the cost is the same; half of the replay's predictions are skipped)."""
+    n = len(r.y)
+    out = np.zeros(n, bool)
+    par = _block_parity(r)
+    for hs in horizons_s:
+        h = _lag(r, hs)
+        end = np.arange(h, n)
+        out[: n - h] |= _valid(n, h, r.ts)[end] & (par[end] == parity)
     return out
 
 

@@ -217,12 +217,13 @@ def predict_horizons(params: StartValues | Mapping[str, float] | None, y: np.nda
                      q_force: float, f_force: float, r_sensor: float, horizons: Sequence[int], stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,
                      correction: Mapping | None = None, f_sensor: float = 0.0,
-                     r_coloured: float = 0.0) -> dict[str, np.ndarray]:
+                     r_coloured: float = 0.0, starts: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """:func:`predict_measured` at several ``horizons`` [samples] in one pass
     (``maglev_replay_predict_horizons``): the filter runs once and each prediction's trajectory to
     the longest horizon is read at every one, so the result equals one call per horizon at the
     cost of the longest alone. ``y_pred`` and ``i_pred`` have one row per horizon; ``innov``,
-    ``innov_var``, ``d``, ``d_sd`` as in :func:`predict_measured`."""
+    ``innov_var``, ``d``, ``d_sd`` as in :func:`predict_measured`. ``starts``: ``n`` flags, predictions
+    only from the samples flagged (``maglev_replay_predict_masked``; NaN elsewhere)."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
     arrays, n, cur = _measured_inputs(y, u, current)
@@ -232,11 +233,16 @@ def predict_horizons(params: StartValues | Mapping[str, float] | None, y: np.nda
     filt = _filter(m, q_force, f_force, r_sensor, max(hs, default=0), stride, False, f_sensor, r_coloured)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    rc = m.lib.maglev_replay_predict_horizons(ptr(pv), filt, _correction(m, correction), float(ts), *(ptr(a) for a in arrays),
-                                              m.ffi.NULL if cur is None else ptr(cur), float(r_current), n, len(hs),
-                                              m.ffi.new("int[]", hs), *(ptr(out[k]) for k in
-                                                                        ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")),
-                                              msg, 256)
+    head = (ptr(pv), filt, _correction(m, correction), float(ts), *(ptr(a) for a in arrays),
+            m.ffi.NULL if cur is None else ptr(cur), float(r_current), n, len(hs), m.ffi.new("int[]", hs))
+    tail = (*(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")), msg, 256)
+    if starts is None:
+        rc = m.lib.maglev_replay_predict_horizons(*head, *tail)
+    else:
+        flags = np.ascontiguousarray(starts, dtype=np.uint8)
+        if flags.shape != (n,):
+            raise ValueError(f"starts must hold {n} flags, not {flags.shape}")
+        rc = m.lib.maglev_replay_predict_masked(*head, m.ffi.cast("unsigned char *", m.ffi.from_buffer(flags)), *tail)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return out
