@@ -63,6 +63,21 @@ int maglev_replay_point(const double *params, double x, double i, MaglevPoint *o
     return 0;
 }
 
+int maglev_replay_readings(const double *params, const double *x, size_t n, double t, double *y, char *msg,
+                           size_t len) {
+    MaglevPlant m;
+    if (maglev_replay_check_params(params, msg, len)) return -1;
+    load(&m, params, msg, len);
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(x[k])) {
+            snprintf(msg, len, "position x = %g m is not finite", x[k]);
+            return -1;
+        }
+        y[k] = maglev_reading(&m, x[k], t);
+    }
+    return 0;
+}
+
 int maglev_replay_positions(const double *params, const double *y, size_t n, double t, double *x, char *msg,
                             size_t len) {
     MaglevPlant m;
@@ -444,9 +459,10 @@ static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS]
 
 static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
     if (!f || !(f->q_force > 0) || !isfinite(f->q_force) || !(f->f_force > 0) || !isfinite(f->f_force) ||
-        !(f->r_sensor > 0) || !isfinite(f->r_sensor) || f->horizon < 0 || f->stride < 1) {
+        !(f->r_sensor > 0) || !isfinite(f->r_sensor) || f->horizon < 0 || f->stride < 1 || f->offset < 0 ||
+        f->offset >= f->stride) {
         snprintf(msg, len, "invalid filter settings (q_force > 0 N, f_force > 0 Hz, r_sensor > 0 MU, "
-                 "horizon >= 0, stride >= 1)");
+                 "horizon >= 0, stride >= 1, 0 <= offset < stride)");
         return -1;
     }
     if (!(f->f_sensor >= 0) || !isfinite(f->f_sensor)) {
@@ -467,8 +483,9 @@ static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
 static int predict(const double *params, const MaglevController *ctl, const MaglevCorrection *corr, double ts,
                    const MaglevFilter *f, const double *w,
                    const double *y, const double *u, const double *i_meas, double r_current, size_t n,
-                   double u_hold, int n_h, const int *horizons, double *y_pred, double *u_pred, double *i_pred,
-                   double *innov, double *innov_var, double *d_est, double *d_sd, char *msg, size_t len) {
+                   double u_hold, int n_h, const int *horizons, const unsigned char *starts, double *y_pred,
+                   double *u_pred, double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
+                   char *msg, size_t len) {
     MaglevPlant m;
     if ((ctl && ctl_check(ctl, u_hold, msg, len)) || filter_check(f, msg, len) || correction_check(corr, msg, len))
         return -1;
@@ -571,7 +588,8 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
          * each end where the record allows, the same predictions as one call per horizon) */
         int h_run = h_max;
         if (n_h > 1 && k + (size_t)h_run >= n) h_run = (int)(n - 1 - k);
-        if (h_run > 0 && k % (size_t)f->stride == 0 && k + (size_t)h_run < n) {
+        if (h_run > 0 && k % (size_t)f->stride == (size_t)f->offset && (!starts || starts[k]) &&
+            k + (size_t)h_run < n) {
             MaglevPlant cur;
             CtlState pp = cs;
             double dd = d, cc = c, uin = u[k], yj = 0.0;
@@ -684,7 +702,7 @@ int maglev_replay_predict(const double *params, const MaglevController *c, const
         snprintf(msg, len, "no controller given (maglev_replay_predict_measured replays without one)");
         return -1;
     }
-    return predict(params, c, NULL, c->pid.ts, f, w, y, u, NULL, 0.0, n, u_hold, 1, &f->horizon, y_pred, u_pred, NULL,
+    return predict(params, c, NULL, c->pid.ts, f, w, y, u, NULL, 0.0, n, u_hold, 1, &f->horizon, NULL, y_pred, u_pred, NULL,
                    innov, innov_var, NULL, NULL, msg, len);
 }
 
@@ -692,7 +710,7 @@ int maglev_replay_predict_measured(const double *params, const MaglevFilter *f, 
                                    const double *u, const double *i_meas, double r_current, size_t n,
                                    double *y_pred, double *i_pred, double *innov, double *innov_var, double *d_est,
                                    double *d_sd, char *msg, size_t len) {
-    return predict(params, NULL, NULL, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, 1, &f->horizon, y_pred,
+    return predict(params, NULL, NULL, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, 1, &f->horizon, NULL, y_pred,
                    NULL, i_pred, innov, innov_var, d_est, d_sd, msg, len);
 }
 
@@ -700,7 +718,7 @@ int maglev_replay_predict_corrected(const double *params, const MaglevFilter *f,
                                     double ts, const double *y, const double *u, const double *i_meas,
                                     double r_current, size_t n, double *y_pred, double *i_pred, double *innov,
                                     double *innov_var, double *d_est, double *d_sd, char *msg, size_t len) {
-    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, 1, &f->horizon, y_pred,
+    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, 1, &f->horizon, NULL, y_pred,
                    NULL, i_pred, innov, innov_var, d_est, d_sd, msg, len);
 }
 
@@ -709,7 +727,7 @@ int maglev_replay_predict_horizons(const double *params, const MaglevFilter *f, 
                                    double r_current, size_t n, int n_h, const int *horizons, double *y_pred,
                                    double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
                                    char *msg, size_t len) {
-    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, n_h, horizons, y_pred,
+    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, n_h, horizons, NULL, y_pred,
                    NULL, i_pred, innov, innov_var, d_est, d_sd, msg, len);
 }
 
@@ -722,6 +740,15 @@ int maglev_replay_predict_closed(const double *params, const MaglevController *c
         snprintf(msg, len, "no controller given (maglev_replay_predict_horizons predicts without one)");
         return -1;
     }
-    return predict(params, c, NULL, c->pid.ts, f, w, y, u, i_meas, r_current, n, u_hold, n_h, horizons, y_pred, u_pred,
+    return predict(params, c, NULL, c->pid.ts, f, w, y, u, i_meas, r_current, n, u_hold, n_h, horizons, NULL, y_pred, u_pred,
                    i_pred, innov, innov_var, d_est, d_sd, msg, len);
+}
+
+int maglev_replay_predict_masked(const double *params, const MaglevFilter *f, const MaglevCorrection *corr, double ts,
+                                 const double *y, const double *u, const double *i_meas, double r_current, size_t n,
+                                 int n_h, const int *horizons, const unsigned char *starts, double *y_pred,
+                                 double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
+                                 char *msg, size_t len) {
+    return predict(params, NULL, corr, ts, f, NULL, y, u, i_meas, r_current, n, n ? u[0] : 0.0, n_h, horizons, starts,
+                   y_pred, NULL, i_pred, innov, innov_var, d_est, d_sd, msg, len);
 }

@@ -104,6 +104,7 @@ typedef struct {
                         * regression on the measured current would use it), 0 by the actuator signal */
     double f_sensor;   /* [Hz] corner of the coloured part of the sensor noise (>= 0; 0: white only) */
     double r_coloured; /* [MU] RMS of the coloured part (> 0 when f_sensor > 0; unused when f_sensor = 0) */
+    int offset;      /* the predictions start at the samples k with k % stride == offset (0 <= offset < stride) */
 } MaglevFilter;
 
 /* A located correction at the mechanics: a force on the ball [N] (positive: along x, upward in
@@ -166,6 +167,15 @@ int maglev_replay_predict_horizons(const double *params, const MaglevFilter *fil
                                    double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
                                    char *msg, size_t msglen);
 
+/* maglev_replay_predict_horizons from the samples k with starts[k] != 0 alone (besides k % stride ==
+ * offset; starts holds n flags, NULL: every one): the same predictions where made, NaN elsewhere; the
+ * filter still follows every sample. A cost read on some samples only needs no other predictions. */
+int maglev_replay_predict_masked(const double *params, const MaglevFilter *filter, const MaglevCorrection *corr,
+                                 double ts, const double *y, const double *u, const double *i_meas,
+                                 double r_current, size_t n, int n_h, const int *horizons,
+                                 const unsigned char *starts, double *y_pred, double *i_pred, double *innov,
+                                 double *innov_var, double *d_est, double *d_sd, char *msg, size_t msglen);
+
 /* The closed loop predicted at n_h horizons (as maglev_replay_predict_horizons) with a controller:
  * the filter follows the measured y (and the measured current i_meas, may be NULL) driven by the
  * measured u; from every stride-th sample the plant and the controller run on their own predicted
@@ -198,6 +208,11 @@ typedef struct {
 } MaglevPoint;
 
 int maglev_replay_point(const double *params, double x, double i, MaglevPoint *out, char *msg, size_t msglen);
+
+/* The noise-free readings y [MU] at time t [s] of n positions x [m] (MaglevPoint's y, one call for a
+ * record). Returns 0, or -1 with a message (a position that is not finite). */
+int maglev_replay_readings(const double *params, const double *x, size_t n, double t, double *y, char *msg,
+                           size_t msglen);
 
 /* The position between the stops [m] where the model reads y [MU] at time t [s], for n readings;
  * readings beyond the travel give the nearest stop. Returns 0, or -1 with a message. */

@@ -169,6 +169,43 @@ def test_several_horizons_in_one_pass_are_the_separate_predictions():
         assert np.isfinite(o["y_pred"]).sum() == len(range(0, len(r.y) - real_rig._lag(r, hs), 3))
 
 
+
+def test_predictions_from_some_starts_are_those_of_every_start_there():
+    """The costs that read only some predictions make only those (MaglevFilter.offset, and the
+    flagged starts of maglev_replay_predict_masked behind the effect search's even and odd blocks):
+    where made, they are the predictions of every start bit for bit, NaN elsewhere; and a cost on
+    the blocks of one parity is the same with and without its flags. The replay cache hands out
+    read-only arrays."""
+    rig = load_rig("inteco-mls2em")
+    r = _record(rig, np.zeros(2500), seed=9)
+    p = rig.params.replace(T_d=1.5e-3)
+    every = real_rig.predict(rig, r, p, r.ts, use_current=False, noise=NOISE)
+    third = real_rig.predict(rig, r, p, r.ts, use_current=False, noise=NOISE, stride=3, offset=2)
+    made = np.isfinite(third["i_pred"])
+    assert np.array_equal(np.flatnonzero(made), np.arange(3, len(r.y), 3))   # from k = 2, 5, ... one ahead
+    assert np.array_equal(third["i_pred"][made], every["i_pred"][made])
+    assert not every["i_pred"].flags.writeable
+    flags = np.zeros(len(r.y), bool)
+    flags[::7] = True
+    full = real_rig.predict_many(rig, r, p, real_rig.CAL_HORIZONS_S, stride=2, noise=NOISE)
+    some = real_rig.predict_many(rig, r, p, real_rig.CAL_HORIZONS_S, stride=2, noise=NOISE, starts=flags)
+    for hs, a, b in zip(real_rig.CAL_HORIZONS_S, full, some):
+        h = real_rig._lag(r, hs)
+        ends = np.zeros(len(r.y), bool)
+        ends[h:] = flags[:-h] & (np.arange(len(r.y) - h) % 2 == 0)
+        ends &= np.isfinite(a["y_pred"])
+        assert np.array_equal(np.isfinite(b["y_pred"]), ends)
+        assert np.array_equal(a["y_pred"][ends], b["y_pred"][ends]) and np.array_equal(a["d"], b["d"])
+    for parity in (0, 1):
+        with_flags = real_rig.prediction_cost(rig, [r], p, parity=parity, noise=NOISE)
+        real_rig._replays.clear()
+        flagged, real_rig._parity_starts = real_rig._parity_starts, lambda rr, hs, par: np.ones(len(rr.y), bool)
+        try:
+            assert real_rig.prediction_cost(rig, [r], p, parity=parity, noise=NOISE) == with_flags
+        finally:
+            real_rig._parity_starts = flagged
+            real_rig._replays.clear()
+
 def test_the_coil_stage_finds_a_planted_drive_delay():
     """The coil stage (calibrate_coil with the delay, COIL_FIT) on a record of the model whose duty
     reaches the coil 1.5 ms late (a reference step every 0.1 s) recovers the delay within 0.35 ms

@@ -146,14 +146,14 @@ def check_params(params: Mapping[str, float] | None) -> None:
 
 
 def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int,
-            current_input: bool = False, f_sensor: float = 0.0, r_coloured: float = 0.0):
+            current_input: bool = False, f_sensor: float = 0.0, r_coloured: float = 0.0, offset: int = 0):
     """The C filter settings (``MaglevFilter``, ``c/maglev_replay.h``) of both prediction entry points.
     ``f_sensor`` [Hz], ``r_coloured`` [MU]: corner and RMS of the coloured part of the sensor noise
     (``f_sensor`` 0: white only)."""
     return m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
                                         "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride),
                                         "current_input": int(bool(current_input)), "f_sensor": float(f_sensor),
-                                        "r_coloured": float(r_coloured)})
+                                        "r_coloured": float(r_coloured), "offset": int(offset)})
 
 
 def _measured_inputs(y: np.ndarray, u: np.ndarray, current: np.ndarray | None
@@ -181,7 +181,7 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
                      q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,
                      current_input: bool = False, correction: Mapping | None = None, f_sensor: float = 0.0,
-                     r_coloured: float = 0.0) -> dict[str, np.ndarray]:
+                     r_coloured: float = 0.0, offset: int = 0) -> dict[str, np.ndarray]:
     """The prediction-error replay of a record whose controller is unknown, in one C call
     (``maglev_replay_predict_measured``): the filter follows the measured reading ``y`` [MU] (and
     the measured coil ``current`` [A], white noise of RMS ``r_current``, when given) and predicts
@@ -193,12 +193,13 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     ``correction``: a located correction at the mechanics (``MaglevCorrection``: ``n_x``, ``x_c``,
     ``x_s``, ``v_s``, ``v_c``, ``coef``), a force that is a function of position and velocity, in the
     filter's model and its predictions (``maglev_replay_predict_corrected``). ``f_sensor`` [Hz],
-    ``r_coloured`` [MU]: the coloured part of the sensor noise beside the white ``r_sensor`` (0: none)."""
+    ``r_coloured`` [MU]: the coloured part of the sensor noise beside the white ``r_sensor`` (0: none).
+    ``offset``: the predictions start at the samples ``k`` with ``k % stride == offset``."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
     arrays, n, cur = _measured_inputs(y, u, current)
     out = {k: np.empty(n) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")}
-    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input, f_sensor, r_coloured)
+    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input, f_sensor, r_coloured, offset)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     # (the corrected entry point with NULL is the measured one: maglev_replay.c)
@@ -221,12 +222,13 @@ def predict_horizons(params: StartValues | Mapping[str, float] | None, y: np.nda
                      q_force: float, f_force: float, r_sensor: float, horizons: Sequence[int], stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,
                      correction: Mapping | None = None, f_sensor: float = 0.0,
-                     r_coloured: float = 0.0) -> dict[str, np.ndarray]:
+                     r_coloured: float = 0.0, starts: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """:func:`predict_measured` at several ``horizons`` [samples] in one pass
     (``maglev_replay_predict_horizons``): the filter runs once and each prediction's trajectory to
     the longest horizon is read at every one, so the result equals one call per horizon at the
     cost of the longest alone. ``y_pred`` and ``i_pred`` have one row per horizon; ``innov``,
-    ``innov_var``, ``d``, ``d_sd`` as in :func:`predict_measured`."""
+    ``innov_var``, ``d``, ``d_sd`` as in :func:`predict_measured`. ``starts``: ``n`` flags, predictions
+    only from the samples flagged (``maglev_replay_predict_masked``; NaN elsewhere)."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
     arrays, n, cur = _measured_inputs(y, u, current)
@@ -236,11 +238,16 @@ def predict_horizons(params: StartValues | Mapping[str, float] | None, y: np.nda
     filt = _filter(m, q_force, f_force, r_sensor, max(hs, default=0), stride, False, f_sensor, r_coloured)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    rc = m.lib.maglev_replay_predict_horizons(ptr(pv), filt, _correction(m, correction), float(ts), *(ptr(a) for a in arrays),
-                                              m.ffi.NULL if cur is None else ptr(cur), float(r_current), n, len(hs),
-                                              m.ffi.new("int[]", hs), *(ptr(out[k]) for k in
-                                                                        ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")),
-                                              msg, 256)
+    head = (ptr(pv), filt, _correction(m, correction), float(ts), *(ptr(a) for a in arrays),
+            m.ffi.NULL if cur is None else ptr(cur), float(r_current), n, len(hs), m.ffi.new("int[]", hs))
+    tail = (*(ptr(out[k]) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")), msg, 256)
+    if starts is None:
+        rc = m.lib.maglev_replay_predict_horizons(*head, *tail)
+    else:
+        flags = np.ascontiguousarray(starts, dtype=np.uint8)
+        if flags.shape != (n,):
+            raise ValueError(f"starts must hold {n} flags, not {flags.shape}")
+        rc = m.lib.maglev_replay_predict_masked(*head, m.ffi.cast("unsigned char *", m.ffi.from_buffer(flags)), *tail)
     if rc != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return out

@@ -57,6 +57,17 @@ def point(params: PlantParams | Mapping[str, float] | np.ndarray | None, x: floa
     return Point(*(float(getattr(out, f)) for f in Point.__dataclass_fields__))
 
 
+def readings(params: PlantParams | Mapping[str, float] | np.ndarray | None, x, t: float = 0.0) -> np.ndarray:
+    """The noise-free readings [MU] at positions ``x`` [m] and time ``t`` [s] (Eq. 12, 13): ``point(params,
+    x).y`` for each, in one C call."""
+    m = fast._lib()
+    x = np.ascontiguousarray(np.atleast_1d(np.asarray(x, dtype=float)))
+    y = np.empty_like(x)
+    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
+    _call("maglev_replay_readings", params, ptr(x), len(x), float(t), ptr(y))
+    return y
+
+
 def positions(params: PlantParams | Mapping[str, float] | np.ndarray | None, y, t: float = 0.0) -> np.ndarray:
     """Positions [m] between the stops where the model reads ``y`` [MU] at time ``t`` [s] (Eq. 12,
     13 inverted, ``k_x2`` and the pickup included); readings beyond the travel give the nearest stop."""

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ..plant.formulas import point, positions
+from ..plant.formulas import point, positions, readings
 from ..plant.params import PlantParams
 
 if sys.version_info >= (3, 11):
@@ -95,7 +95,7 @@ class Rig:
         """The plant's noise-free reading ``y`` [MU] for record positions [m] (a ``position`` sensor:
         ``x / position_scale``; otherwise Eq. 12, 13 with the rig's sensor)."""
         x = np.atleast_1d(self.to_x(position))
-        return np.array([point(self.params, float(xk)).y for xk in x.ravel()]).reshape(x.shape)
+        return readings(self.params, x.ravel()).reshape(x.shape)
 
     def position_for_reading(self, y):
         """Record positions [m] for plant readings ``y`` [MU] (the sensor's inverse, Eq. 12, 13)."""
