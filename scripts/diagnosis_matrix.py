@@ -40,6 +40,7 @@ import benchdoc
 
 from maglev_cosim.diagnosis import CATALOGUE, pipeline
 from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS, TWINS
+from maglev_cosim.diagnosis.replay import baseline_params, estimate_noise, predict
 from maglev_cosim.plant.params import get_params
 from maglev_cosim.records.record import read_record
 from maglev_cosim.records.synth import draw_disturbance, synth_record
@@ -61,7 +62,7 @@ WEIGHT = get_params("section3").m_k * get_params("section3").g     #: the ball's
 FRICTION_SHARE = (0.01, 0.10)
 #: The done-when figures of issue 22 that the benchmark checks (docs/diagnosis.md, "The acceptance benchmark").
 TARGETS = {"the emulator's own computation delay found as a delay": "—", "false positives": "≤ 2 %", "power": "≥ 95 %", "spurious second effect": "≤ 2 %",
-           "'explained' beyond 1.2× the no-effect twin's error": "0", "friction ≥ 2 % of the weight": "100 %",
+           "'explained' beyond 1.2× the true model's error": "0", "'explained' beyond 1.2× the no-effect twin's error": "–", "friction ≥ 2 % of the weight": "100 %",
            "current limit found, i_max within 5 %": "100 %"}
 
 
@@ -160,6 +161,20 @@ def _own_delay(path: Path, ts: float) -> float:
     return float(_truth(path).get("settings", {}).get("pid_offset", 0.0)) * ts
 
 
+def true_prediction_y(rec, path: Path, planted: dict[str, dict[str, float]]) -> float:
+    """The true model's 20 ms prediction error of y [MU] on a record: the emulator's plant (the
+    baseline parameters, the planted effects, the emulator's own computation delay) under the
+    disturbance model the diagnosis estimates for it, through the predictor the verdict uses
+    (``replay.predict``). Issue 22's measure of "explained": the final model's error within 1.2x of it."""
+    values = {**baseline_params(), **{p: v for e in planted.values() for p, v in e.items()}}
+    own = _own_delay(path, rec.ts)
+    if own > 0:
+        values["T_d"] = values.get("T_d", 0.0) + own
+    pr = predict(rec, values, estimate_noise(rec, values))
+    ok = np.isfinite(pr["y_pred"])
+    return float(np.sqrt(np.mean((rec.y[ok] - pr["y_pred"][ok]) ** 2)))
+
+
 def false_positives(null: list[dict]) -> int:
     """No-effect records where the diagnosis selected something other than the emulator's own delay."""
     return sum(bool(r["selected"]) and not r.get("own_delay_found", False) for r in null)
@@ -222,10 +237,11 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n
         ratio = d.after["rms_u"] / null["free_run"] if null else float("nan")
         ratio_k = d.verdict.after.prediction_rms["u"] / null["prediction"] if null else float("nan")
         ratio_y = d.verdict.after.prediction_rms["y"] / null["prediction_y"] if null else float("nan")
+        ratio_true = d.verdict.after.prediction_rms["y"] / true_prediction_y(rec, path, planted)
         effect = next(iter(planted))
         row = {"case": name, "effect": effect, "seed": seed, "planted": planted[effect], "selected": d.selected,
                "after_over_null": ratio, "after_over_null_prediction": ratio_k,
-               "after_over_null_prediction_y": ratio_y, "seconds": dt, "verdict": d.verdict.verdict,
+               "after_over_null_prediction_y": ratio_y, "after_over_true_prediction_y": ratio_true, "seconds": dt, "verdict": d.verdict.verdict,
                "fit_mode": d.fit_mode, "estimates": {p: d.parameters.get(p) for p in planted[effect]},
                "i_limited_share": _truth(path)["i_limited_share"],
                "alternatives": {e: [a["effect"] for a in alts] for e, alts in d.alternatives.items()}}
@@ -261,13 +277,15 @@ def _share(k: int, n: int) -> str:
 
 
 def _checks(out: dict, n_null: int, fp: int, hits: int, n_catalogue: int) -> list[dict]:
-    """The done-when figures of issue 22 over the benchmark's rows. 'The true model's error' is stood
-    for by the no-effect twin's: the final model's 20 ms prediction error of y on the record of the
-    same draw without the effect, which the diagnosis there ends with."""
+    """The done-when figures of issue 22 over the benchmark's rows. 'The true model's error' is the
+    20 ms prediction error of y of the emulator's own plant on the record (:func:`true_prediction_y`);
+    the no-effect twin's (the final model's error on the record of the same draw without the
+    effect) is shown beside it."""
     power = out["power"]
     single = power                      # every record of the benchmark has one effect planted
     spurious = [r for r in single if len(r["selected"]) > 1]
-    loose = [r for r in power if r["verdict"] == "explained" and r["after_over_null_prediction_y"] > 1.2]
+    loose = [r for r in power if r["verdict"] == "explained" and r["after_over_true_prediction_y"] > 1.2]
+    loose_twin = [r for r in power if r["verdict"] == "explained" and r["after_over_null_prediction_y"] > 1.2]
     friction = [r for r in power if r["effect"] == "coulomb_friction" and r["planted"]["F_c"] >= 0.02 * WEIGHT]
     fr_ok = [r for r in friction if "coulomb_friction" in r["selected"] or r["verdict"] == "unexplained: mechanics"]
     limits = [r for r in power if r["effect"] == "current_saturation" and r["case"] != r["effect"]]
@@ -281,7 +299,8 @@ def _checks(out: dict, n_null: int, fp: int, hits: int, n_catalogue: int) -> lis
     rows += [
              ("power", n_catalogue, _share(hits, n_catalogue)),
              ("spurious second effect", len(single), _share(len(spurious), len(single))),
-             ("'explained' beyond 1.2× the no-effect twin's error", len(power), str(len(loose))),
+             ("'explained' beyond 1.2× the true model's error", len(power), str(len(loose))),
+             ("'explained' beyond 1.2× the no-effect twin's error", len(power), str(len(loose_twin))),
              ("friction ≥ 2 % of the weight", len(friction), _share(len(fr_ok), len(friction))),
              ("current limit found, i_max within 5 %", len(limits), _share(len(lim_ok), len(limits)))]
     return [{"criterion": c, "records": n, "measured": m, "target": TARGETS[c]} for c, n, m in rows]
@@ -293,8 +312,10 @@ def family_section(res: dict, emulator: str) -> str:
             "then on the first draws each catalogue effect at the matrix's magnitude, a current limit acting in "
             f"{100 * LIMIT_SHARE[0]:.0f}–{100 * LIMIT_SHARE[1]:.0f} % of the samples and Coulomb friction of "
             f"{100 * FRICTION_SHARE[0]:.0f}–{100 * FRICTION_SHARE[1]:.0f} % of the weight. The default catalogue "
-            "is tried. 'The no-effect twin' is the record of the same draw without the effect: its final 20 ms "
-            "prediction error of y stands for the true model's."
+            "is tried. 'The true model' is the emulator's own plant (the baseline parameters, the planted effect and "
+            "the emulator's own computation delay) predicting the record through the verdict's predictor under the "
+            "disturbance model estimated for it; 'the no-effect twin' is the record of the same draw without the "
+            "effect, whose final 20 ms prediction error of y is shown beside."
             + (" The independent emulator applies its PID's output a fraction of a sample late (`pid_offset`), a "
                "real delay of its records: a `delay` found alone on a no-effect record within 3σ (or "
                f"{100 * OWN_DELAY_TOL:.0f} %) of it is counted on its own row, not as a false positive."
@@ -305,11 +326,12 @@ def family_section(res: dict, emulator: str) -> str:
             "held-out blocks did not tell from it (`pipeline.distinct`: the likelihood ratio between the two below "
             "the acceptance test's threshold); the power counts the effect chosen alone.", "",
             benchdoc.table(["case", "seed", "planted", "limit active", "selected", "estimate", "verdict",
-                            "y 20 ms / twin"],
+                            "y 20 ms / true model", "y 20 ms / twin"],
                            [[r["case"], r["seed"], ", ".join(f"{k} = {v:.4g}" for k, v in r["planted"].items()),
                              f"{100 * r['i_limited_share']:.1f} %", _selected(r),
                              ", ".join(f"{k} = {v:.4g}" for k, v in r["estimates"].items() if v is not None) or "—",
-                             r["verdict"], f"{r['after_over_null_prediction_y']:.2f}"] for r in res["power"]])]
+                             r["verdict"], f"{r.get('after_over_true_prediction_y', float('nan')):.2f}",
+                             f"{r['after_over_null_prediction_y']:.2f}"] for r in res["power"]])]
     wrong = [r for r in res["null"] if r["selected"] or r["verdict"] != "no effect"]
 
     def what(r: dict) -> str:

@@ -43,3 +43,24 @@ def test_a_delay_at_the_emulators_own_value_has_its_row_and_is_no_false_positive
                              "ivp")
     assert "seed 1: explained (delay: T_d = 0.340 ± 0.030 ms, the emulator's own 0.30 ms)" in text
     assert "not as a false positive" in text
+
+
+def test_explained_is_judged_against_the_true_models_error(tmp_path):
+    """The benchmark's measure of 'explained': the final model's 20 ms error of y over that of the
+    emulator's own plant (baseline, planted effect) on the record. On a record with a 2.5 ms delay,
+    the true model's error is below the baseline's (the model without the delay), and the checks
+    count an 'explained' row beyond 1.2x of it, whatever the twin says."""
+    from maglev_cosim.records.record import read_record
+    from maglev_cosim.records.synth import synth_record
+
+    path = synth_record(tmp_path / "d.csv", duration=6.0, seed=3, effects={"delay": {"T_d": 0.0025}})
+    rec = read_record(path)
+    true = dm.true_prediction_y(rec, path, {"delay": {"T_d": 0.0025}})
+    without = dm.true_prediction_y(rec, path, {})
+    assert 0 < true < 0.8 * without
+    row = {"case": "delay", "effect": "delay", "seed": 3, "planted": {"T_d": 0.0025}, "selected": ["delay"],
+           "verdict": "explained", "after_over_true_prediction_y": 1.3, "after_over_null_prediction_y": 1.0,
+           "estimates": {"T_d": 0.0025}, "i_limited_share": 0.0}
+    checks = {c["criterion"]: c["measured"] for c in dm._checks({"null": [], "power": [row]}, 0, 0, 1, 1)}
+    assert checks["'explained' beyond 1.2× the true model's error"] == "1"
+    assert checks["'explained' beyond 1.2× the no-effect twin's error"] == "0"
