@@ -1270,7 +1270,7 @@ def judge_against_black_box(verdict: str, comp: dict) -> tuple[str, list[str]]:
     reasons = [f"the model predicts the gap worse than the black-box baseline fitted on the same calibration "
                f"segments at {', '.join(h for h, _ in lost)} (median skill over {figs['segments']} {role} "
                f"segment(s): {why}). The model's figure is its closed-loop prediction with the controller "
-               "identified from the record (docs/diagnosis.md, \"Model against black box\"): either the model lacks "
+               "identified from the record (docs/diagnosis.md, \"A controller nobody states\"): either the model lacks "
                "something that acts on the gap's dynamics (the force or the mechanics), or the controller is not "
                "the linear one the identification assumes (gain scheduling, saturation, a state estimator of "
                "higher order), so that its reaction after the start is read only in part"]
@@ -1785,16 +1785,22 @@ def _markdown(res: dict, plots: list[Path]) -> str:
     lines = [f"# Rig {res['rig']}: measured records", "", f"**Verdict: {res['verdict']}**", ""]
     lines += [f"- {r}" for r in res["reasons"]]
     lines += ["", "Fits are NRMSE fit % (MATLAB `compare`); the gap is predicted by the prediction-error replay "
-              "driven by the measured actuator signal (the controller is not replayed); skill = 1 − ‖error of "
-              "the model‖/‖error of 'stays put'‖ (> 0: the model beats the naive predictor).", ""]
+              "in closed loop with a controller identified from the record (a linear map from the gap, the "
+              "reference, the current and its own past to the actuator signal, fitted on the other half of the "
+              "record's 1 s blocks; the measured actuator signal after each start is read as its reaction to the "
+              "model's error: docs/diagnosis.md, 'A controller nobody states'), and driven by the measured "
+              "actuator signal alone; skill = 1 − ‖error of the model‖/‖error of 'stays put'‖ (> 0: the model "
+              "beats the naive predictor).", ""]
     comp = res.get("comparison", {})
     if any("black_box" in v for c in comp.values() for v in c.values() if isinstance(v, dict)):
         lines += ["## The model against the black-box baseline", "",
                   "Median skill against 'stays put' (worst in brackets) of the gap predicted ahead: the model (the "
-                  "physics with its effects and its disturbance model), the black-box baseline (one ridge regression "
+                  "physics with its effects and its disturbance model) in closed loop with the identified controller "
+                  "and driven by the actuator signal alone, the black-box baseline (one ridge regression "
                   "per horizon on the last 30 ms of gap differences and the measured current and its square up to "
-                  "the predicted instant, fitted by the tool on the same calibration segments) and 'constant "
-                  "velocity'. Higher is better; > 0 beats 'stays put'.", "",
+                  "the predicted instant, fitted by the tool on the same calibration segments), the same black box "
+                  "with the current only up to the prediction's start, and 'constant velocity'. Higher is better; "
+                  "> 0 beats 'stays put'.", "",
                   *comparison_table(comp)]
         lines.append("")
     cal = res.get("calibration")
