@@ -60,23 +60,23 @@ def point(params: PlantParams | Mapping[str, float] | np.ndarray | None, x: floa
 def readings(params: PlantParams | Mapping[str, float] | np.ndarray | None, x, t: float = 0.0) -> np.ndarray:
     """The noise-free readings [MU] at positions ``x`` [m] and time ``t`` [s] (Eq. 12, 13): ``point(params,
     x).y`` for each, in one C call."""
-    m = fast._lib()
-    x = np.ascontiguousarray(np.atleast_1d(np.asarray(x, dtype=float)))
-    y = np.empty_like(x)
-    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    _call("maglev_replay_readings", params, ptr(x), len(x), float(t), ptr(y))
-    return y
+    return _elementwise("maglev_replay_readings", params, x, t)
 
 
 def positions(params: PlantParams | Mapping[str, float] | np.ndarray | None, y, t: float = 0.0) -> np.ndarray:
     """Positions [m] between the stops where the model reads ``y`` [MU] at time ``t`` [s] (Eq. 12,
     13 inverted, ``k_x2`` and the pickup included); readings beyond the travel give the nearest stop."""
+    return _elementwise("maglev_replay_positions", params, y, t)
+
+
+def _elementwise(entry: str, params, a, t: float) -> np.ndarray:
+    """One C call of ``entry`` (readings from positions, or the inverse) over the array ``a``."""
     m = fast._lib()
-    y = np.ascontiguousarray(np.atleast_1d(np.asarray(y, dtype=float)))
-    x = np.empty_like(y)
-    ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    _call("maglev_replay_positions", params, ptr(y), len(y), float(t), ptr(x))
-    return x
+    a = np.ascontiguousarray(np.atleast_1d(np.asarray(a, dtype=float)))
+    out = np.empty_like(a)
+    ptr = lambda v: m.ffi.cast("double *", m.ffi.from_buffer(v))  # noqa: E731
+    _call(entry, params, ptr(a), len(a), float(t), ptr(out))
+    return out
 
 
 def position(params: PlantParams | Mapping[str, float] | np.ndarray | None, y: float, t: float = 0.0) -> float:
