@@ -95,3 +95,36 @@ def test_a_model_on_a_bound_is_retried_with_the_candidates_present(limited):
     assert again is not None and again.selected == ["current_saturation"], lines
     assert not on_bounds(again.values)[0]
     assert again.values["i_max"] == pytest.approx(0.72, rel=0.05)
+
+
+def test_a_limit_is_scanned_to_the_narrow_minimum_above_the_cliff():
+    """A limit's cost profile has a cliff: below the limit at which the model loses the ball, the
+    cost jumps a thousandfold, and a record whose limit brought the ball near that edge is matched
+    only within about a milliampere above it. The profile below is the one measured on the
+    independent emulator's record of the benchmark (seed 2400, i_max 0.762 A active in 1 % of the
+    samples, the baseline held where its calibration started): the quantile starts step over the
+    minimum (the cheapest, 0.823 A, sits on the plateau where no limit acts, and the fit from it ended
+    at 0.79 A, no better than an amplifier lag), the scan of ``current_saturation`` lands in it."""
+    knots = [(0.7601, 0.45), (0.7605, 0.178), (0.761, 0.41), (0.762, 0.75), (0.765, 1.1), (0.77, 1.2),
+             (0.8, 1.01), (0.82, 0.991), (1.1, 0.993)]
+    calls: list[float] = []
+
+    def cost(z: list[float]) -> float:
+        calls.append(z[0])
+        if z[0] < knots[0][0]:
+            return 1444.0                        # the replay's ball falls away and stays on the stop
+        return float(np.interp(z[0], *zip(*knots)))
+
+    quantile_starts = [0.58, 0.6121, 0.6592, 0.6671, 0.6767, 0.6973, 0.7471, 0.7727, 0.823, 0.9346, 0.9756, 1.0138]
+    scored = [([v], cost([v])) for v in quantile_starts]
+    assert min(scored, key=lambda s: s[1])[0] == [0.823]          # the starts alone miss the minimum
+    calls.clear()
+    found = CATALOGUE["current_saturation"].scan(scored, cost)
+    assert len(calls) == len(found) <= 80                         # each point replayed once, a few dozen
+    (best,), c = min(found, key=lambda s: s[1])
+    assert 0.7601 <= best <= 0.7612 and c < 0.45, (best, c)
+    # where the profile is smooth (a deep limit), the scan only refines the minimum the starts bracket
+    smooth = lambda z: (z[0] - 0.63) ** 2 + 0.5                    # noqa: E731
+    (best,), c = min(CATALOGUE["current_saturation"].scan([([v], smooth([v])) for v in quantile_starts], smooth),
+                     key=lambda s: s[1])
+    assert abs(best - 0.63) < 0.01

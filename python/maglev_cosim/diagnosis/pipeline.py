@@ -220,29 +220,47 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
     origin = {p: prob.base[p] for p in BASELINE.params}     # where the calibration started from
     prob = prob.with_base(current)
 
-    def from_best_start(cur: dict[str, float]):
-        # choose the best start with the baseline held, then fit everything from it
-        best, best_cost, best_vals = None, math.inf, None
-        for z in eff.starts(prob, cur):
-            vals = eff.start_values(z, prob, cur)
+    def best_start(cur: dict[str, float]) -> tuple[float, list[float], dict[str, float]]:
+        # the best start with the baseline held: of the effect's starts, and of its scan from their costs
+        scored: list[tuple[list[float], float, dict[str, float]]] = []
+
+        def cost(z: Sequence[float]) -> float:
+            vals = eff.start_values(list(z), prob, cur)
             c = float(np.mean(residuals(prob, vals) ** 2))
-            if c < best_cost:
-                best, best_cost, best_vals = z, c, vals
+            scored.append((list(z), c, vals))
+            return c
+
+        for z in eff.starts(prob, cur):
+            cost(z)
+        eff.scan([(z, c) for z, c, _ in scored], cost)
+        c, z, vals = min(((c, z, vals) for z, c, vals in scored), key=lambda t: t[0])
+        return c, z, vals
+
+    def fit_from(cur: dict[str, float], start: tuple[float, list[float], dict[str, float]]):
+        _, best, best_vals = start
         best = eff.prefit(prob, cur, list(best))
         # the start's values besides the fitted coordinates (say the force exponent's pivot) stay
         f = fit(prob.with_base(best_vals), [BASELINE, eff], [BASELINE.to_coords(best_vals), best], max_nfev=max_nfev)
         return {**cur, **best_vals, **f.values}, f
 
-    values, f = from_best_start(current)
-    nfev, retried = f.nfev, False
+    # An effect the baseline can absorb (a D/A offset that shifted to mimic a current limit) may
+    # have no start from the calibrated values that reaches it: its starts are placed from where the
+    # calibration started too, and the fit goes from the better of the two.
+    bases = [current]
+    if eff.absorbed_by and any(current[p] != origin[p] for p in BASELINE.params):
+        bases.append({**current, **origin})
+    starts = [best_start(b) for b in bases]
+    k = min(range(len(bases)), key=lambda j: starts[j][0])
+    values, f = fit_from(bases[k], starts[k])
+    nfev, retried = f.nfev, k > 0
     if (eff.is_off(values) and eff.absorbed_by) or on_bounds(values)[0]:
-        # The baseline may have absorbed the effect (a D/A offset that shifted to mimic a current
-        # limit), so that from its calibrated values the effect cannot act: retried with the
-        # baseline from where its calibration started, the effect's starts placed anew.
-        again, f2 = from_best_start({**current, **origin})
+        # From the chosen start the effect ended off, or the baseline on a bound: retried from the
+        # other baseline (where the calibration started, the effect's starts placed anew).
+        other = {**current, **origin} if k == 0 else current
+        again, f2 = fit_from(other, starts[1 - k] if len(starts) > 1 else best_start(other))
         nfev += f2.nfev
         if f2.cost < f.cost or (on_bounds(values)[0] and not on_bounds(again)[0]):
-            values, f, retried = again, f2, True
+            values, f, retried = again, f2, k == 0
     return {"effect": effect_name, "values": values, "fit_cost": f.cost, "nfev": nfev, "retried": retried,
             "cpu_s": time.process_time() - t0}
 
@@ -383,7 +401,8 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                     if not order:
                         break
                     say(f"  fitting {len(order)} of them to convergence: {', '.join(order)}")
-                jobs = [(prob, current, e, nfev) for e in order]
+                # (an effect the baseline can absorb is fitted to convergence whatever its screen: none)
+                jobs = [(prob, current, e, nfev) for e in order if stage == "fit" or not CATALOGUE[e].absorbed_by]
                 for k, res in enumerate(pool.map(_worker, jobs) if pool else map(_worker, jobs), 1):
                     entry, vals = judge(prob, hold_mask, hold_before, res, rnd)
                     entry["stage"] = stage
