@@ -64,3 +64,19 @@ def test_explained_is_judged_against_the_true_models_error(tmp_path):
     checks = {c["criterion"]: c["measured"] for c in dm._checks({"null": [], "power": [row]}, 0, 0, 1, 1)}
     assert checks["'explained' beyond 1.2× the true model's error"] == "1"
     assert checks["'explained' beyond 1.2× the no-effect twin's error"] == "0"
+
+
+def test_a_delay_beside_the_planted_effect_at_the_emulators_own_value_is_no_spurious_second_effect():
+    base = {"case": "current limit 2 %", "effect": "current_saturation", "seed": 1, "planted": {"i_max": 0.7},
+            "verdict": "explained", "after_over_true_prediction_y": 1.0, "after_over_null_prediction_y": 1.0,
+            "estimates": {"i_max": 0.7}, "i_limited_share": 0.02, "own_delay_s": 3e-4}
+    own = {**base, "selected": ["current_saturation", "delay"], "estimates_all": {"i_max": 0.7, "T_d": 3.3e-4},
+           "sigma_all": {"T_d": 2e-5}}
+    other = {**base, "selected": ["current_saturation", "force_lag"], "estimates_all": {"i_max": 0.7, "T_F": 1e-3}}
+    far = {**own, "estimates_all": {"i_max": 0.7, "T_d": 1.2e-3}}
+    project = {**own, "own_delay_s": 0.0}
+    assert dm.extra_effects(own) == [] and dm.extra_effects(other) == ["force_lag"]
+    assert dm.extra_effects(far) == ["delay"] and dm.extra_effects(project) == ["delay"]
+    checks = {c["criterion"]: c["measured"] for c in dm._checks({"null": [], "power": [own, other, far, project]},
+                                                                 0, 0, 0, 0)}
+    assert checks["spurious second effect"] == "3 of 4 (75.0 %)"
