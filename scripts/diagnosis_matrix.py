@@ -182,12 +182,16 @@ def is_own_delay(t_d: float, sigma: float, own: float) -> bool:
 
 
 def extra_effects(row: dict) -> list[str]:
-    """The effects a record with one planted effect ended with besides it, the emulator's own delay
-    (:func:`is_own_delay`) not counted: a spurious second effect."""
+    """A spurious second effect: the effects beyond the first that a record with one planted effect
+    ended with, the emulator's own delay (:func:`is_own_delay`) not counted; empty when it ended
+    with one effect or none (a wrong single effect is a miss of the power count, not a second one)."""
     own = row.get("own_delay_s", 0.0)
-    return [e for e in row["selected"] if e != row["effect"]
-            and not (e == "delay" and "T_d" in row.get("estimates_all", {})
-                     and is_own_delay(row["estimates_all"]["T_d"], row.get("sigma_all", {}).get("T_d", 0.0), own))]
+    kept = [e for e in row["selected"]
+            if not (e == "delay" and "T_d" in row.get("estimates_all", {})
+                    and is_own_delay(row["estimates_all"]["T_d"], row.get("sigma_all", {}).get("T_d", 0.0), own))]
+    if len(kept) < 2:
+        return []
+    return [e for e in kept if e != row["effect"]] if row["effect"] in kept else kept[1:]
 
 
 def false_positives(null: list[dict]) -> int:

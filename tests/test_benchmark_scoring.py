@@ -75,8 +75,10 @@ def test_a_delay_beside_the_planted_effect_at_the_emulators_own_value_is_no_spur
     other = {**base, "selected": ["current_saturation", "force_lag"], "estimates_all": {"i_max": 0.7, "T_F": 1e-3}}
     far = {**own, "estimates_all": {"i_max": 0.7, "T_d": 1.2e-3}}
     project = {**own, "own_delay_s": 0.0}
+    wrong = {**base, "selected": ["delay"], "estimates_all": {"T_d": 2e-3}}      # a miss, not a second effect
     assert dm.extra_effects(own) == [] and dm.extra_effects(other) == ["force_lag"]
     assert dm.extra_effects(far) == ["delay"] and dm.extra_effects(project) == ["delay"]
-    checks = {c["criterion"]: c["measured"] for c in dm._checks({"null": [], "power": [own, other, far, project]},
+    assert dm.extra_effects(wrong) == []
+    checks = {c["criterion"]: c["measured"] for c in dm._checks({"null": [], "power": [own, other, far, project, wrong]},
                                                                  0, 0, 0, 0)}
-    assert checks["spurious second effect"] == "3 of 4 (75.0 %)"
+    assert checks["spurious second effect"] == "3 of 5 (60.0 %)"
