@@ -232,12 +232,11 @@ def predict(y: np.ndarray, u: np.ndarray, w: np.ndarray | None, traj: np.ndarray
     lag = max(orders[k] for k in signals)
     nb = max(1, int(round(BLOCK_S / ts)))
     block = np.arange(n) // nb
-    parity = _split(int(block[-1]) + 1, 0)[block]
-    back = lag                          # what a start reads before itself: the controller's lags
-    skip = max(back, int(round(SETTLE_S / ts)))
-    ks = np.arange(skip, n - H)
-    # a start is used when its whole window (what it reads before, the horizon after) lies in one block
-    ks = ks[(block[ks - back] == block[ks]) & (block[ks + H] == block[ks])]
+    fold_of_block = _split(int(block[-1]) + 1, 0)
+    parity = fold_of_block[block]
+    ks = np.arange(max(lag, int(round(SETTLE_S / ts))), n - H)
+    # a start is used when its whole window (the controller's lags before, the horizon after) lies in one block
+    ks = ks[(block[ks - lag] == block[ks]) & (block[ks + H] == block[ks])]
     ks = ks[np.all(np.isfinite(traj[ks, 1:H + 1]), axis=1)]
     rows_all = np.arange(lag, n)
     rows_all = rows_all[block[rows_all - lag] == block[rows_all]]
@@ -251,7 +250,7 @@ def predict(y: np.ndarray, u: np.ndarray, w: np.ndarray | None, traj: np.ndarray
     ctls, identifies = [], []
     half = np.zeros(n, int)             # within one parity, half of its blocks: the trust's own split
     for f in (0, 1):
-        mine = np.flatnonzero(_split(int(block[-1]) + 1, 0) == f)
+        mine = np.flatnonzero(fold_of_block == f)
         half[np.isin(block, mine[_split(len(mine), 1) == 1])] = 1
     for f in (0, 1):
         fit_rows = rows_all[parity[rows_all] == f]
