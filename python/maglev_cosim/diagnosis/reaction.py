@@ -177,9 +177,11 @@ class ReactionPrediction:
     controllers: list[LinearController]
     fit_rms: list[list[dict[str, float]]] = field(default_factory=list)
     identified: list[dict] = field(default_factory=list)    #: per fitting fold: unseen residuals, excitation
+    orders: dict[str, int] = field(default_factory=lambda: dict(ORDERS))   #: the lags the controllers read
 
     def to_json(self) -> dict:
-        return {"horizons": list(self.horizons), "trust": self.trust, "identified": self.identified, "block_s": BLOCK_S, "orders": dict(ORDERS),
+        return {"horizons": list(self.horizons), "trust": self.trust, "identified": self.identified,
+                "block_s": BLOCK_S, "orders": dict(self.orders),
                 "controllers": [c.to_json() for c in self.controllers], "fit_rms": self.fit_rms}
 
 
@@ -299,4 +301,4 @@ def predict(y: np.ndarray, u: np.ndarray, w: np.ndarray | None, traj: np.ndarray
             if chosen is not None:
                 pred += r_use[:, :h] @ reaction_gain(ctl.b, cov, chosen * var)[h - 1]
             out[q, use_k + h] = pred
-    return ReactionPrediction(tuple(int(h) for h in horizons), out, trust, ctls, fit_rms, identifies)
+    return ReactionPrediction(tuple(int(h) for h in horizons), out, trust, ctls, fit_rms, identifies, orders)
