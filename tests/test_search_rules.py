@@ -34,11 +34,17 @@ def _limited(tmp_path, effects=None, i_max=I_MAX):
     return rec, prob, ~fit_mask, {**start, **first.values}
 
 
-def test_a_second_effect_that_only_patches_an_underfitted_first_one_is_rejected(tmp_path):
+@pytest.fixture(scope="module")
+def limited(tmp_path_factory):
+    """:func:`_limited` with the limit alone, shared by the tests that only read it."""
+    return _limited(tmp_path_factory.mktemp("limited"))
+
+
+def test_a_second_effect_that_only_patches_an_underfitted_first_one_is_rejected(limited):
     """The first effect held where it under-fits (i_max 8 % high): a candidate whose fit also moved
     the limit to its right value, with a friction of 0.01 % of the weight, beats the model as it
     stood by far, and gains nothing against that model refitted in full from the candidate's values."""
-    rec, prob, hold, first = _limited(tmp_path)
+    rec, prob, hold, first = limited
     assert not rec.warnings, rec.warnings
     assert abs(first["i_max"] / I_MAX - 1) < 0.03, first["i_max"]
     stood = {**first, "i_max": 1.08 * first["i_max"]}
@@ -125,13 +131,13 @@ def test_the_prediction_mode_refit_ends_on_the_criterion_the_verdict_judges():
     assert 1 - further.cost / cost < 0.01, (cost, further.cost, vals)
 
 
-def test_a_held_out_gain_without_a_gain_on_the_fit_blocks_is_not_accepted(tmp_path):
+def test_a_held_out_gain_without_a_gain_on_the_fit_blocks_is_not_accepted(limited):
     """Issue 22's spurious second effect beside a long-active limit: the held-out free run of such a
     record turns on when the model loses the ball (one 0.8 s block made the 22 % a 78 us delay gained
     on seed 2501, which gained 0.06 % on the blocks it was fitted on). Here the limit's model as the
     candidate (a delay of 10 us) against a held-out cost before set twice as high: it passes the
     held-out test, and fails the same test on the fit blocks, where it gains nothing."""
-    rec, prob, hold, first = _limited(tmp_path)
+    rec, prob, hold, first = limited
     cand = {**first, "T_d": 5e-5}
     hold_before = 2.0 * cost_on(prob, first, hold)
     res = {"effect": "delay", "values": cand}
