@@ -421,7 +421,8 @@ def by_innovations_alone(prob: Problem, hold_mask: np.ndarray, current: Mapping[
     effect (a Coulomb friction of 1.8 % of the weight, a sensor bend k_x2 = -3e4) hides there under
     the random force (free-run LR 10.4 and 7.1 against 10.8), and the filter, which follows the
     record's own disturbances, sees it (LR 209 and 62 on seed 2900's records; at most 11 for any
-    candidate of the no-effect records of seeds 2000-2006). Updates the entries in place."""
+    candidate of the no-effect records of seeds 2000-2006, a pickup with a threshold of 16.3, and 2
+    for a one-parameter one). Updates the entries in place."""
     todo = [(e, entry, vals) for e, (entry, vals) in results.items()
             if entry.get("stage") == "fit" and not entry["accepted"] and entry["held_out_gain"] > 0
             and not entry.get("off") and not entry.get("inconsistent")]
