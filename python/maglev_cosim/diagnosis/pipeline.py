@@ -312,8 +312,8 @@ FULL_NFEV = 60
 def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, rnd: int) -> tuple[dict, dict]:
     """A fitted candidate judged on the held-out blocks: its table entry and its values."""
     vals = res["values"]
-    hold_after = cost_on(prob, vals, hold_mask)
     r_hold = residuals(prob, vals, hold_mask)
+    hold_after = float(np.mean(r_hold ** 2))          # cost_on's figure, from the same replay
     half = len(r_hold) // 2
     n_eff = min(effective_samples(r_hold[:half]), effective_samples(r_hold[half:]))
     eff = CATALOGUE[res["effect"]]
@@ -416,6 +416,11 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             order = sorted(remaining, key=lambda e: -work[e])
             results: dict[str, tuple[dict, dict]] = {}
             prepared: dict[str, Mapping] = {}     # each candidate's scored starts, from its screen
+            # The effects the baseline can absorb are fitted to convergence whatever the screens find:
+            # with a pool, those fits (the round's longest) go first, beside the screens, rather than
+            # after them on one core while the other idles. Judged in the fit stage, in its order.
+            early = {e: pool.submit(_worker, (prob, current, e, FULL_NFEV, None))
+                     for e in order if CATALOGUE[e].absorbed_by} if pool else {}
             for stage, nfev in (("screen", SCREEN_NFEV), ("fit", FULL_NFEV)):
                 if stage == "fit":
                     # only the candidates the screen found promising are fitted to convergence, and
@@ -431,7 +436,9 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                 # (a fit to convergence takes its screen's starts: prepared[e])
                 jobs = [(prob, current, e, nfev, prepared.get(e)) for e in order
                         if stage == "fit" or not CATALOGUE[e].absorbed_by]
-                for k, res in enumerate(pool.map(_worker, jobs) if pool else map(_worker, jobs), 1):
+                rest = iter(pool.map(_worker, [j for j in jobs if j[2] not in early]) if pool else map(_worker, jobs))
+                outs = (early[j[2]].result() if j[2] in early else next(rest) for j in jobs)
+                for k, res in enumerate(outs, 1):
                     prepared[res["effect"]] = res.pop("prepared")
                     entry, vals = judge(prob, hold_mask, hold_before, res, rnd)
                     entry["stage"] = stage

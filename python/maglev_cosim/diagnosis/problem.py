@@ -131,7 +131,9 @@ def residuals(prob: Problem, values: Mapping[str, float], mask: np.ndarray | Non
     """Weighted residual vector (y errors, then u errors) of a replay with ``values`` applied.
     A parameter set the plant rejects (say x_0 pushed below x_max) costs as much as a ball
     lying on a stop: the search then turns away from it instead of failing."""
-    m = (prob.mask if mask is None else mask) & prob.compared()
+    m = prob.mask if mask is None else mask
+    if prob.noise is not None:          # prediction mode: only where a prediction ends (free run: every sample)
+        m = m & prob.compared()
     try:
         sim = prob.simulate(values)
     except ValueError:
