@@ -57,3 +57,14 @@ def test_fit_from_screen_starts_equals_fit_from_scratch(prob):
     again = pipeline.fit_candidate(prob, current, "force_lag", 20, screen["prepared"])
     fresh = pipeline.fit_candidate(prob, current, "force_lag", 20)
     assert again["values"] == fresh["values"] and again["fit_cost"] == fresh["fit_cost"]
+
+
+def test_converged_screen_is_the_fit_to_convergence(prob):
+    """A candidate whose fits all ended by a tolerance within the screen's evaluations is the fit to
+    convergence: the search takes it instead of fitting it again."""
+    current = {p: prob.base[p] for p in BASELINE.params}
+    screen = pipeline.fit_candidate(prob, current, "delay", 30)
+    if not screen["converged"]:
+        pytest.skip("the screen did not converge on this record")
+    full = pipeline.fit_candidate(prob, current, "delay", pipeline.FULL_NFEV, screen["prepared"])
+    assert full["converged"] and full["values"] == screen["values"] and full["nfev"] == screen["nfev"]

@@ -277,17 +277,20 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
         (values, f), spare = thread_map(lambda j: fit_from(bases[j], starts[j], j), [k, 1 - k])
     else:
         values, f = fit_from(bases[k], starts[k], k)
-    nfev, retried = f.nfev, k > 0
+    nfev, retried, converged = f.nfev, k > 0, f.converged
     if (eff.is_off(values) and eff.absorbed_by) or on_bounds(values)[0]:
         # From the chosen start the effect ended off, or the baseline on a bound: retried from the
         # other baseline (where the calibration started, the effect's starts placed anew).
         other = {**current, **origin} if k == 0 else current
         again, f2 = spare if spare is not None else fit_from(other, best_start(other))
-        nfev += f2.nfev
+        nfev, converged = nfev + f2.nfev, converged and f2.converged
         if f2.cost < f.cost or (on_bounds(values)[0] and not on_bounds(again)[0]):
             values, f, retried = again, f2, k == 0
+    # converged: every fit ended by a tolerance within max_nfev, so that any larger max_nfev ends the
+    # same (the same iterations): a screen that converged is the fit to convergence
     return {"effect": effect_name, "values": values, "fit_cost": f.cost, "nfev": nfev, "retried": retried,
-            "cpu_s": time.process_time() - t0, "prepared": {"starts": starts, "prefit": prefits}}
+            "converged": converged, "cpu_s": time.process_time() - t0,
+            "prepared": {"starts": starts, "prefit": prefits}}
 
 
 def _worker(args: tuple[Problem, dict[str, float], str, int, Mapping | None]) -> dict:
@@ -416,6 +419,7 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             order = sorted(remaining, key=lambda e: -work[e])
             results: dict[str, tuple[dict, dict]] = {}
             prepared: dict[str, Mapping] = {}     # each candidate's scored starts, from its screen
+            converged: set[str] = set()           # candidates whose screen converged (fit() ended by a tolerance)
             # The effects the baseline can absorb are fitted to convergence whatever the screens find:
             # with a pool, those fits (the round's longest) go first, beside the screens, rather than
             # after them on one core while the other idles. Judged in the fit stage, in its order.
@@ -436,14 +440,25 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                 # (a fit to convergence takes its screen's starts: prepared[e])
                 jobs = [(prob, current, e, nfev, prepared.get(e)) for e in order
                         if stage == "fit" or not CATALOGUE[e].absorbed_by]
-                rest = iter(pool.map(_worker, [j for j in jobs if j[2] not in early]) if pool else map(_worker, jobs))
-                outs = (early[j[2]].result() if j[2] in early else next(rest) for j in jobs)
+                # a screen whose fits converged within SCREEN_NFEV is its fit to convergence: not fitted again
+                done = {e for e in order if stage == "fit" and e in converged}
+                rest = iter(pool.map(_worker, [j for j in jobs if j[2] not in early and j[2] not in done]) if pool
+                            else map(_worker, [j for j in jobs if j[2] not in done]))
+                outs = (early[j[2]].result() if j[2] in early else (None, j[2]) if j[2] in done else next(rest)
+                        for j in jobs)
                 for k, res in enumerate(outs, 1):
-                    prepared[res["effect"]] = res.pop("prepared")
-                    entry, vals = judge(prob, hold_mask, hold_before, res, rnd)
-                    entry["stage"] = stage
-                    results[res["effect"]] = (entry, vals)
-                    cpu[res["effect"]] = res["cpu_s"]
+                    if isinstance(res, tuple):        # (None, effect): its converged screen, judged alike
+                        entry, vals = results[res[1]]
+                        entry = {**entry, "stage": stage}
+                        results[res[1]] = (entry, vals)
+                    else:
+                        prepared[res["effect"]] = res.pop("prepared")
+                        if stage == "screen" and res["converged"]:
+                            converged.add(res["effect"])
+                        entry, vals = judge(prob, hold_mask, hold_before, res, rnd)
+                        entry["stage"] = stage
+                        cpu[res["effect"]] = res["cpu_s"]
+                        results[res["effect"]] = (entry, vals)
                     say(f"  [{k}/{len(jobs)}] {entry['effect']} ({stage}): "
                         + ", ".join(f"{p} = {v:.4g}" for p, v in entry["parameters"].items())
                         + f"; held-out cost change {-100 * entry['held_out_gain']:+.1f} % "

@@ -161,6 +161,7 @@ class Fit:
     values: dict[str, float]
     cost: float                      # mean squared weighted residual on the fit samples
     nfev: int = 0
+    converged: bool = True           # ended by a tolerance, not by max_nfev: more evaluations change nothing
 
 
 def _values(parts: Sequence[Parameterization], z: np.ndarray) -> dict[str, float]:
@@ -193,4 +194,4 @@ def fit(prob: Problem | Sequence[Problem], parts: Sequence[Parameterization], z0
         par = {"workers": ex.map} if _LSQ_WORKERS and THREADS > 1 else {}
         r = least_squares(fun, zs, bounds=(lo, hi), diff_step=1e-6, x_scale=1.0, max_nfev=max_nfev,
                           ftol=1e-6, xtol=1e-6, gtol=1e-10, **par)
-    return Fit(_values(parts, r.x * sc), float(np.mean(r.fun**2)), int(r.nfev))
+    return Fit(_values(parts, r.x * sc), float(np.mean(r.fun**2)), int(r.nfev), bool(r.status != 0))
