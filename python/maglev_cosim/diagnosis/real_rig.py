@@ -59,7 +59,12 @@ SETTLE_S = 0.5
 CALIBRATED = {"voltage": ("k_e", "z_e", "R_c", "k_DA", "u_0"), "current": ("k_c", "x_0", "k_i", "T_a")}
 #: The coil's parameters, by drive type: fitted on the current from the actuator signal alone
 #: (:func:`calibrate_coil`), on the calibration records and again on every record (their drift).
-COIL = {"voltage": ("R_c", "k_DA", "u_0"), "current": ("k_i",)}
+COIL = {"voltage": ("R_c", "k_DA", "u_0", "kappa_R"), "current": ("k_i",)}
+#: Bounds of the coil resistance's drift ``kappa_R`` [1/s] (``R_c·(1 + kappa_R·t)``, t from the segment's
+#: start: the winding warming during the run) that :func:`calibrate_coil` searches: ±1 %/s, a copper
+#: winding warming or cooling by 2.5 K a second, far beyond a levitating coil's few watts. On the nine
+#: shared Inteco records each segment's own fit found +0.04 to +0.11 %/s (every one of them warming).
+COIL_DRIFT_BOUNDS = (-0.01, 0.01)
 #: The coil stage on the calibration records fits these, :data:`COIL` and the drive's transport
 #: delay ``T_d`` (the duty a real-time controller computes at one sample reaches the coil about a
 #: sample later: computation, output, the PWM period). The delay is the hardware's and software's,
@@ -207,7 +212,7 @@ def predict(rig: Rig, r: RigRecord, params: PlantParams, horizon_s: float, *, us
     return _cached(key, lambda: fast.predict_measured(
         start, r.y, r.u, ts=r.ts, q_force=nz["q_force"], f_force=nz["f_force"], r_sensor=nz["r_sensor"], horizon=h,
         stride=stride, current=r.current if use_current else None, r_current=nz["r_current"],
-        correction=nz.get("correction"), offset=offset))
+        correction=nz.get("correction"), offset=offset, coil_free=not use_current))
 
 
 def predict_many(rig: Rig, r: RigRecord, params: PlantParams, horizons_s: Sequence[float], *, stride: int = 1,
@@ -359,9 +364,12 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
                    names: Sequence[str] | None = None) -> tuple[PlantParams, dict]:
     """The coil's parameters (default :data:`COIL` of the rig's drive) that make the current
     computed from the actuator signal alone (the filter never sees the measured current; the gap
-    is tracked) fit the measured current: least squares on factors in [0.5, 2] (offsets ±1 V).
-    Returns the parameters and a summary (``values``, ``fit`` % per record, ``on_bounds``); with
-    no measured current, the parameters unchanged and ``None``."""
+    is tracked) fit the measured current: least squares on factors in [0.5, 2] (offsets ±1 V; the
+    delay ``T_d`` within :data:`COIL_DELAY_BOUNDS`, the resistance's drift ``kappa_R`` within
+    :data:`COIL_DRIFT_BOUNDS`). Returns the parameters and a summary (``values``, ``sigma``: ±1σ from
+    the Jacobian, widened for the residual's correlation from sample to sample (an AR(1) count of
+    independent samples), ``fit`` % per record, ``on_bounds``); with no measured current, the
+    parameters unchanged and ``None``."""
     names = tuple(names or COIL[rig.drive])
     use = [r for r in records if r.current is not None]
     if not use:
@@ -370,10 +378,13 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
     additive = np.array([n == "u_0" for n in names])
     # the delay in ms, absolute (from 0, which a factor could not leave)
     delay = np.array([n == "T_d" for n in names])
+    # the resistance's drift in 1e-3/s, absolute (from 0 too)
+    drift = np.array([n == "kappa_R" for n in names])
+    absolute = delay | drift
     nz = noise_defaults(rig, params)
 
     def make(z: np.ndarray) -> PlantParams:
-        vals = np.where(delay, 1e-3 * z, np.where(additive, base + z, base * z))
+        vals = np.where(absolute, 1e-3 * z, np.where(additive, base + z, base * z))
         vals = np.where(delay & (vals < 1e-6), 0.0, vals)   # a delay under 1 µs is off
         return params.replace(**dict(zip(names, vals)))
 
@@ -404,16 +415,38 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
         except ValueError:
             return np.full(sum(len(r.y) // 3 + 1 for r in use), 10.0)
 
-    lo = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[0], np.where(additive, -1.0, 0.5))
-    hi = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[1], np.where(additive, 1.0, 2.0))
-    z0 = np.where(delay, np.clip(1e3 * base, 1.0, None), np.where(additive, 0.0, 1.0))
+    lo = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[0],
+                  np.where(drift, 1e3 * COIL_DRIFT_BOUNDS[0], np.where(additive, -1.0, 0.5)))
+    hi = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[1],
+                  np.where(drift, 1e3 * COIL_DRIFT_BOUNDS[1], np.where(additive, 1.0, 2.0)))
+    z0 = np.where(delay, np.clip(1e3 * base, 1.0, None), np.where(drift, 1e3 * base, np.where(additive, 0.0, 1.0)))
     fun, jac = _threaded_jacobian(resid, lo, hi, 1e-4)
-    sol = least_squares(fun, np.clip(z0, lo, hi), jac=jac, bounds=(lo, hi), x_scale=np.where(delay, 0.5, 0.05),
-                        max_nfev=30)
+    sol = least_squares(fun, np.clip(z0, lo, hi), jac=jac, bounds=(lo, hi),
+                        x_scale=np.where(delay, 0.5, 0.05), max_nfev=30)
     p = make(sol.x)
     return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
+               "sigma": _coil_sigma(sol, names, base, additive, absolute),
                "fit": {r.label: nrmse_fit(*reversed(currents(p, r))) for r in use},
                "on_bounds": [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]}
+
+
+def _coil_sigma(sol, names: Sequence[str], base: np.ndarray, additive: np.ndarray, absolute: np.ndarray
+                ) -> dict[str, float]:
+    """±1σ of :func:`calibrate_coil`'s parameters in their own units: the Jacobian's covariance at the
+    solution, scaled by the residual's variance and widened by ``sqrt((1 + ρ)/(1 − ρ))`` for its
+    correlation ρ from one residual to the next (an AR(1) residual: fewer independent samples than
+    rows; the current's model errors are slow beside its 1 kHz samples)."""
+    e = np.asarray(sol.fun, float)
+    n, k = len(e), len(sol.x)
+    rho = float(np.clip(np.corrcoef(e[:-1], e[1:])[0, 1], 0.0, 0.99)) if n > 3 and np.std(e) > 0 else 0.0
+    try:
+        cov = np.linalg.pinv(sol.jac.T @ sol.jac) * (float(e @ e) / max(n - k, 1)) * (1 + rho) / (1 - rho)
+        sz = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        sz = np.full(k, np.nan)
+    # z: factors on the start (R_c, k_DA), volts (u_0), thousandths (T_d [ms], kappa_R [1e-3/s])
+    return {nm: float(sz[j] * (1e-3 if absolute[j] else (1.0 if additive[j] else abs(base[j]))))
+            for j, nm in enumerate(names)}
 
 
 #: The filter's disturbance model, calibrated with the plant (log-factors on :func:`noise_defaults`):
@@ -1638,7 +1671,7 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     if len(coils) > 1:
         result["coil_drift"] = {n: {"min": min(c[n] for c in coils), "max": max(c[n] for c in coils),
                                     "relative": float(np.ptp([c[n] for c in coils]) / abs(np.mean([c[n] for c in coils])))
-                                    if n != "u_0" else float(np.ptp([c[n] for c in coils]))}
+                                    if n not in ("u_0", "kappa_R", "kappa_R_sigma") else float(np.ptp([c[n] for c in coils]))}
                                 for n in coils[0]}
     if len(own) > 1:
         result["spread"] = {n: {"min": min(o[n] for o in own), "max": max(o[n] for o in own),
@@ -1739,6 +1772,8 @@ def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> 
         return params, None
     p, info = calibrate_coil(rig, [r], params)
     values = dict((info or {}).get("values") or {})
+    if "kappa_R" in values:   # the heating's drift is a finding: with its ±1σ
+        values["kappa_R_sigma"] = float(info["sigma"]["kappa_R"])
     gain = mechanics_names(p)[0]
     factor = own_force_gain(rig, r, p)
     if np.isfinite(factor) and FORCE_BALANCE[0] <= 1 / factor <= FORCE_BALANCE[1]:
