@@ -1599,7 +1599,7 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     if heating:
         found = [(lb, c) for lb, c in heating if abs(c["kappa_R"]) > 2 * c["kappa_R_sigma"]]
         reasons.append(f"the coil resistance changes during the run beyond its 2σ in {len(found)} of {len(heating)} "
-                       "segment(s) (kappa_R, each segment's own coil, %/s ± 2σ): "
+                       "segment(s) (kappa_R, each segment's own coil, %/s ± 2σ; its model uses it only beyond 2σ): "
                        + "; ".join(f"{lb} {100 * c['kappa_R']:+.3f} ± {200 * c['kappa_R_sigma']:.3f}" for lb, c in heating)
                        + ": the winding warming (copper: +0.39 %/K) or cooling")
     held_skill = [v["after"]["position"]["20 ms"]["skill_vs_stays_put"] for v in result["validation"]]
@@ -1786,7 +1786,8 @@ def _spread(values: Sequence[dict]) -> dict:
 
 def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> tuple[PlantParams, dict | None]:
     """The model of one segment with its own coil (:func:`calibrate_coil` on the segment alone: a
-    resistance that follows heating, a drive gain that differs between runs) and its own force gain
+    resistance that differs between runs and warms during the run, ``kappa_R``, used only where its
+    estimate lies beyond its 2σ of 0, a drive gain that differs between runs) and its own force gain
     (:func:`own_force_gain`: the force law's gain times the factor that makes it carry the ball's
     weight at the segment's measured gap and current) once the model is calibrated; the segment's
     values, or ``None``."""
@@ -1795,7 +1796,14 @@ def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> 
     p, info = calibrate_coil(rig, [r], params)
     values = dict((info or {}).get("values") or {})
     if "kappa_R" in values:   # the heating's drift is a finding: with its ±1σ
-        values["kappa_R_sigma"] = float(info["sigma"]["kappa_R"])
+        sigma = float(info["sigma"]["kappa_R"])
+        if not abs(values["kappa_R"]) > 2 * sigma:
+            # within its 2σ of none: the segment's model goes without it (the rest refitted so), the
+            # estimate is still reported
+            p, info = calibrate_coil(rig, [r], params.replace(kappa_R=0.0),
+                                     names=[n for n in COIL[rig.drive] if n != "kappa_R"])
+            values = {**values, **info["values"]}
+        values["kappa_R_sigma"] = sigma
     gain = mechanics_names(p)[0]
     factor = own_force_gain(rig, r, p)
     if np.isfinite(factor) and FORCE_BALANCE[0] <= 1 / factor <= FORCE_BALANCE[1]:
