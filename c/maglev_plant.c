@@ -61,6 +61,7 @@
     X(beta_F, MAGLEV_PARAMETER, 0.0, 0.0, 1.0, "1", "Share of the force that follows the static force law through a second, slower lag T_F2 (eddy currents in the core; the ball feels (1 - beta_F)*F_fast + beta_F*F2, F_fast the force lag's output or the static force; 0 = off)", "eddy_lag") \
     X(T_F2, MAGLEV_PARAMETER, 0.01, T_F_MIN, 1.0, "s", "Time constant of the second force lag F2' = (F_s - F2)/T_F2 (used when beta_F > 0)", "eddy_lag") \
     X(kappa_c, MAGLEV_PARAMETER, 0.0, -0.05, 0.05, "1/s", "Rate at which the force gain changes: the force law (Eq. 8, and the exponential law) times max(0, 1 + kappa_c*t) (the coil and magnet heating; 0 = off)", "force_gain_drift") \
+    X(kappa_R, MAGLEV_PARAMETER, 0.0, -0.05, 0.05, "1/s", "Rate at which a voltage drive's coil resistance changes: R_c*max(0, 1 + kappa_R*t) (the winding heating during the run, about 0.39 %/K for copper; 0 = off)", "") \
     X(solver_step, MAGLEV_PARAMETER, 1e-4, STEP_MIN, STEP_MAX, "s", "Largest internal RK4 step", "") \
     X(F, MAGLEV_OUTPUT, 0.0, ANY, "N", "Magnetic force on the ball, Eq. 8", "")
 #endif
@@ -221,9 +222,16 @@ static double coil_volts(const MaglevPlant *m, double u_mu) {
     return v < P(m, V_min) ? P(m, V_min) : v;
 }
 
-/* di/dt of a voltage drive: d(L i)/dt = V - R_c*i with L(x, i); the ball's motion induces
- * i*dL/dx*v. A current at 0 (the drive's freewheel diode) or at i_max does not pass it. */
-static double coil_rate(const MaglevPlant *m, double volts, double i, double x, double v) {
+/* The coil resistance of a voltage drive at time t: R_c*max(0, 1 + kappa_R*t) (the winding heating). */
+static double coil_resistance(const MaglevPlant *m, double t) {
+    double g = 1.0 + P(m, kappa_R) * t;
+    return P(m, R_c) * (g > 0 ? g : 0.0);
+}
+
+/* di/dt of a voltage drive: d(L i)/dt = V - R(t)*i with L(x, i) and R(t) the coil resistance at t;
+ * the ball's motion induces i*dL/dx*v. A current at 0 (the drive's freewheel diode) or at i_max does
+ * not pass it. */
+static double coil_rate(const MaglevPlant *m, double volts, double i, double x, double v, double t) {
     double gap = P(m, x_0) - x, e = P(m, L_x) * exp(-gap / P(m, z_L));
     double a = P(m, a_i) * i - P(m, b_i);
     double L = P(m, L_0) + e + P(m, L_i) * atan(a), dL_dx = e / P(m, z_L);
@@ -232,7 +240,7 @@ static double coil_rate(const MaglevPlant *m, double volts, double i, double x, 
         dL_dx += P(m, L_g) / (gap * gap);
     }
     double dL_di = P(m, L_i) * P(m, a_i) / (1 + a * a);
-    double rate = (volts - P(m, R_c) * i - i * dL_dx * v) / (L + i * dL_di);
+    double rate = (volts - coil_resistance(m, t) * i - i * dL_dx * v) / (L + i * dL_di);
     if ((i <= 0 && rate < 0) || (i >= P(m, i_max) && rate > 0)) return 0.0;
     return rate;
 }
@@ -377,7 +385,7 @@ HOT Mech deriv(const Piece *pc, double isq, Mech s, int contact) {
     d.i = 0.0;
     d.t = 1.0;
     if (pc->voltage) {
-        d.i = coil_rate(m, pc->volts, s.i, s.x, contact ? 0.0 : s.v);
+        d.i = coil_rate(m, pc->volts, s.i, s.x, contact ? 0.0 : s.v, s.t);
         isq = s.i * s.i;
     }
     if (pc->kappa != 0) isq *= gain_drift(m, s.t); /* effect force_gain_drift: the whole force law scales */
@@ -688,7 +696,8 @@ static double substep_max(const MaglevPlant *m, SetBy *by) {
         *by = BY_FRICTION;
     }
     if (voltage_drive(m)) { /* RK4 on the coil equation: keep h below a fifth of its smallest time constant */
-        double tau_e = (P(m, L_0) - P(m, L_i) * PI / 2) / P(m, R_c);
+        double r = coil_resistance(m, m->time); /* the resistance now, when kappa_R has raised it */
+        double tau_e = (P(m, L_0) - P(m, L_i) * PI / 2) / (r > P(m, R_c) ? r : P(m, R_c));
         if (tau_e / 5 < h) {
             h = tau_e / 5;
             *by = BY_VOLTAGE_DRIVE;

@@ -460,9 +460,9 @@ static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS]
 static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
     if (!f || !(f->q_force > 0) || !isfinite(f->q_force) || !(f->f_force > 0) || !isfinite(f->f_force) ||
         !(f->r_sensor > 0) || !isfinite(f->r_sensor) || f->horizon < 0 || f->stride < 1 || f->offset < 0 ||
-        f->offset >= f->stride) {
+        f->offset >= f->stride || (f->coil_free != 0 && f->coil_free != 1)) {
         snprintf(msg, len, "invalid filter settings (q_force > 0 N, f_force > 0 Hz, r_sensor > 0 MU, "
-                 "horizon >= 0, stride >= 1, 0 <= offset < stride)");
+                 "horizon >= 0, stride >= 1, 0 <= offset < stride, coil_free 0 or 1)");
         return -1;
     }
     if (!(f->f_sensor >= 0) || !isfinite(f->f_sensor)) {
@@ -534,6 +534,8 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
     const int current_state = maglev_param(&m, VR_T_a) > 0 || maglev_param(&m, VR_R_c) > 0;
     const int sensor_lag = maglev_param(&m, VR_T_y) > 0, ys = sensor_lag ? 5 : 0; /* the state y reads */
     const int drive_by_current = !ctl && i_meas && current_state && f->current_input;
+    /* the coil's free run (coil_free): the current takes no part in the reading's updates */
+    const int coil_free = !i_meas && current_state && f->coil_free;
     const int coloured = f->f_sensor > 0;
     const double b = coloured ? exp(-6.283185307179586 * f->f_sensor * ts) : 0.0;
     const double rc2 = coloured ? f->r_coloured * f->r_coloured : 0.0;
@@ -683,6 +685,9 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             for (int j = 0; j < NS; j++)
                 if (!active[i] || !active[j]) P[i][j] = 0.0;
         for (int i = 0; i < NS; i++) P[i][i] += active[i] ? q_extra[i] : 0.0;
+        if (coil_free) /* no covariance of the current with the rest: the updates leave it alone */
+            for (int i = 0; i < NS; i++)
+                if (i != 2) P[i][2] = P[2][i] = 0.0;
         P[4][4] += f->q_force * f->q_force * (1.0 - a * a);
         P[6][6] += rc2 * (1.0 - b * b);
         for (int i = 0; i < NS; i++)

@@ -105,6 +105,11 @@ typedef struct {
     double f_sensor;   /* [Hz] corner of the coloured part of the sensor noise (>= 0; 0: white only) */
     double r_coloured; /* [MU] RMS of the coloured part (> 0 when f_sensor > 0; unused when f_sensor = 0) */
     int offset;      /* the predictions start at the samples k with k % stride == offset (0 <= offset < stride) */
+    int coil_free;   /* without a measured current (i_meas NULL) only: 1 keeps the coil current out of the
+                      * reading's updates (its covariance with the other states is dropped at every sample),
+                      * so the current is the coil model's free run from the actuator signal along the
+                      * tracked position, never pulled by the gap's innovations through the force law;
+                      * 0 (a zeroed field): the current is a state of the filter like the others */
 } MaglevFilter;
 
 /* A located correction at the mechanics: a force on the ball [N] (positive: along x, upward in

@@ -37,7 +37,7 @@ def test_a_delay_at_the_emulators_own_value_has_its_row_and_is_no_false_positive
     checks = {c["criterion"]: c["measured"] for c in dm._checks({"null": null, "power": []}, 2,
                                                                  dm.false_positives(null), 0, 0)}
     assert checks["false positives"] == "0 of 2 (0.0 %)"
-    assert checks["the emulator's own computation delay found as a delay"] == "1 of 2 (50.0 %)"
+    assert checks["the emulator's own computation delay found (as a delay or a lag)"] == "1 of 2 (50.0 %)"
     text = dm.family_section({"null": null, "power": [], "checks": [{"criterion": c, "records": 2, "measured": m,
                                                                       "target": "—"} for c, m in checks.items()]},
                              "ivp")
@@ -78,7 +78,19 @@ def test_a_delay_beside_the_planted_effect_at_the_emulators_own_value_is_no_spur
     wrong = {**base, "selected": ["delay"], "estimates_all": {"T_d": 2e-3}}      # a miss, not a second effect
     assert dm.extra_effects(own) == [] and dm.extra_effects(other) == ["force_lag"]
     assert dm.extra_effects(far) == ["delay"] and dm.extra_effects(project) == ["delay"]
+    lag = {**base, "selected": ["current_saturation", "force_lag"], "estimates_all": {"i_max": 0.7, "T_F": 2.9e-4}}
+    assert dm.extra_effects(lag) == []                       # a 0.29 ms lag is the 0.3 ms delay's twin
     assert dm.extra_effects(wrong) == []
     checks = {c["criterion"]: c["measured"] for c in dm._checks({"null": [], "power": [own, other, far, project, wrong]},
                                                                  0, 0, 0, 0)}
     assert checks["spurious second effect"] == "3 of 5 (60.0 %)"
+
+
+def test_a_short_lag_at_the_emulators_own_delay_is_that_delay_and_a_long_one_is_not():
+    """A first-order lag of T and a delay of T have the same phase to 1 % below 1/(6T): a force or
+    amplifier lag found alone at the emulator's own delay is that delay, under its twin's name."""
+    assert dm.own_delay_effect(["force_lag"], {"T_F": 2.94e-4}, {}, 3e-4) == "force_lag"
+    assert dm.own_delay_effect(["amplifier_lag"], {"T_a": 3.1e-4}, {"T_a": 1e-5}, 3e-4) == "amplifier_lag"
+    assert dm.own_delay_effect(["force_lag"], {"T_F": 2e-3}, {"T_F": 1e-4}, 3e-4) is None
+    assert dm.own_delay_effect(["sensor_nonlinearity"], {"k_x2": 3e-4}, {}, 3e-4) is None
+    assert dm.own_delay_effect(["force_lag"], {"T_F": 3e-4}, {}, 0.0) is None     # the project emulator has none

@@ -194,10 +194,11 @@ def test_calibrate_on_two_inteco_records_and_validate_on_a_third(tmp_path):
     seg = d["records"][0]["segments"][0]["after"]
     assert set(seg["position"]) == {"5 ms", "20 ms", "50 ms"} and seg["current"]["from_actuator"] > 80
     # the spread between records: each record's own coil and force gain
-    assert set(d["spread"]) == {"k_e", "R_c", "k_DA", "u_0", "force_gain_factor"} and d["calibration"]["cost_after"] < d["calibration"]["cost_before"]
+    assert set(d["spread"]) == {"k_e", "R_c", "k_DA", "u_0", "kappa_R", "force_gain_factor"} and d["calibration"]["cost_after"] < d["calibration"]["cost_before"]
     # each segment's own coil, and its own force gain where the force balance allows one
-    assert {"R_c", "k_DA", "u_0"} <= set(d["coil_drift"]) <= {"R_c", "k_DA", "u_0", "k_e", "force_gain_factor"}
-    assert len(d["validation"][0]["own_coil"]) in (3, 5)
+    assert {"R_c", "k_DA", "u_0", "kappa_R"} <= set(d["coil_drift"]) <= {"R_c", "k_DA", "u_0", "kappa_R", "k_e",
+                                                                         "force_gain_factor"}
+    assert len(d["validation"][0]["own_coil"]) in (5, 7)
     assert d["verdict"] in ("no effect", "explained", "explained in part", "unexplained: mechanics",
                             "unexplained: actuator")
     # the coil, then the force law with the disturbance model; the catalogue's effects were tried on

@@ -48,7 +48,7 @@ static void test_other_controllers(void) {
         CHECK(maglev_replay_control(ctls[c], w, y, cur, N, pt.u, x0, u2, msg, sizeof msg) == 0, "%s", msg);
         for (int k = 0; k < N; k++) worst = fmax(worst, fabs(u2[k] - u[k]));
         CHECK(worst == 0.0, "controller %d alone on the loop's signals: off by %g MU", c, worst);
-        MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 10, 7, 0, 0.0, 0.0, 0};
+        MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 10, 7, 0, 0.0, 0.0, 0, 0};
         CHECK(maglev_replay_predict(p, ctls[c], &f, w, y, u, N, pt.u, yp, up, NULL, NULL, msg, sizeof msg) == 0,
               "%s", msg);
         worst = 0.0;
@@ -116,7 +116,7 @@ static void test_coloured_sensor_noise(void) {
     CHECK(maglev_replay_closed_loop(p, &ctl, w, N, pt.u, u, y, NULL, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
 
     /* noise-free: the coloured filter predicts the exact model's loop exactly */
-    MaglevFilter fc = {2.5e-4, 8.0, 1e-4, 20, 3, 0, 100.0, 2e-4, 0};
+    MaglevFilter fc = {2.5e-4, 8.0, 1e-4, 20, 3, 0, 100.0, 2e-4, 0, 0};
     CHECK(maglev_replay_predict(p, &ctl, &fc, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == 0, "%s", msg);
     double worst = 0.0;
     for (int k = 0; k < N; k++)
@@ -133,7 +133,7 @@ static void test_coloured_sensor_noise(void) {
     }
 
     /* 0 means white: the same innovations bit for bit whatever r_coloured holds */
-    MaglevFilter fw = {2.5e-4, 8.0, 2.24e-4, 0, 1, 0, 0.0, 0.0, 0}, fw2 = fw;
+    MaglevFilter fw = {2.5e-4, 8.0, 2.24e-4, 0, 1, 0, 0.0, 0.0, 0, 0}, fw2 = fw;
     fw2.r_coloured = 5.0;
     CHECK(maglev_replay_predict(p, &ctl, &fw, w, yn, u, N, pt.u, NULL, NULL, e0, s0, msg, sizeof msg) == 0, "%s", msg);
     CHECK(maglev_replay_predict(p, &ctl, &fw2, w, yn, u, N, pt.u, NULL, NULL, e, s, msg, sizeof msg) == 0, "%s", msg);
@@ -163,8 +163,8 @@ static void test_coloured_sensor_noise(void) {
     }
 
     /* refusals, naming the field */
-    MaglevFilter bad[] = {{2.5e-4, 8.0, 1e-4, 0, 1, 0, -1.0, 2e-4, 0}, {2.5e-4, 8.0, 1e-4, 0, 1, 0, NAN, 2e-4, 0},
-                          {2.5e-4, 8.0, 1e-4, 0, 1, 0, 100.0, 0.0, 0}, {2.5e-4, 8.0, 1e-4, 0, 1, 0, 100.0, INFINITY, 0}};
+    MaglevFilter bad[] = {{2.5e-4, 8.0, 1e-4, 0, 1, 0, -1.0, 2e-4, 0, 0}, {2.5e-4, 8.0, 1e-4, 0, 1, 0, NAN, 2e-4, 0, 0},
+                          {2.5e-4, 8.0, 1e-4, 0, 1, 0, 100.0, 0.0, 0, 0}, {2.5e-4, 8.0, 1e-4, 0, 1, 0, 100.0, INFINITY, 0, 0}};
     const char *field[] = {"f_sensor", "f_sensor", "r_coloured", "r_coloured"};
     for (size_t k = 0; k < sizeof bad / sizeof bad[0]; k++) {
         msg[0] = 0;
@@ -189,7 +189,7 @@ int main(void) {
     for (int k = 0; k < N; k++) w[k] = pt.y + (k > 300 ? 0.04 : 0.0) - (k > 900 ? 0.07 : 0.0);
     CHECK(maglev_replay_closed_loop(p, &ctl, w, N, pt.u, u, y, NULL, NULL, NULL, msg, sizeof msg) == 0, "%s", msg);
 
-    MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 20, 3, 0, 0.0, 0.0, 0};
+    MaglevFilter f = {2.5e-4, 8.0, 2.5e-4, 20, 3, 0, 0.0, 0.0, 0, 0};
     CHECK(maglev_replay_predict(p, &ctl, &f, w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == 0, "%s", msg);
     int made = 0;
     double worst = 0.0;
@@ -308,9 +308,9 @@ int main(void) {
     }
 
     /* refusals: one message, nothing computed */
-    MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1, 0, 0, 0, 0}, {2.5e-4, NAN, 2.5e-4, 20, 1, 0, 0, 0, 0},
-                          {2.5e-4, 8.0, -1.0, 20, 1, 0, 0, 0, 0}, {2.5e-4, 8.0, 2.5e-4, -1, 1, 0, 0, 0, 0},
-                          {2.5e-4, 8.0, 2.5e-4, 20, 0, 0, 0, 0, 0}};
+    MaglevFilter bad[] = {{0.0, 8.0, 2.5e-4, 20, 1, 0, 0, 0, 0, 0}, {2.5e-4, NAN, 2.5e-4, 20, 1, 0, 0, 0, 0, 0},
+                          {2.5e-4, 8.0, -1.0, 20, 1, 0, 0, 0, 0, 0}, {2.5e-4, 8.0, 2.5e-4, -1, 1, 0, 0, 0, 0, 0},
+                          {2.5e-4, 8.0, 2.5e-4, 20, 0, 0, 0, 0, 0, 0}, {2.5e-4, 8.0, 2.5e-4, 20, 1, 0, 0, 0, 0, 2}};
     for (size_t b = 0; b < sizeof bad / sizeof bad[0]; b++) {
         msg[0] = 0;
         CHECK(maglev_replay_predict(p, &ctl, &bad[b], w, y, u, N, pt.u, yp, up, e, s, msg, sizeof msg) == -1 &&

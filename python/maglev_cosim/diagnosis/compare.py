@@ -150,10 +150,19 @@ def _compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
     hs = [max(1, int(round(h / rec.ts))) for h in horizons_s]
     kw = dict(q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizons=hs, stride=STRIDE,
               f_sensor=noise.f_sensor, r_coloured=noise.r_coloured)
-    with ThreadPoolExecutor(max_workers=2) as pool:      # both run in C, which cffi calls without the GIL
-        job = pool.submit(fast_loop.predict_closed, start, record_controller(rec), rec.w, rec.y, rec.u, u_hold, **kw)
-        measured = fast.predict_horizons(start, rec.y, rec.u, ts=rec.ts, **kw)
-        closed = job.result()
+    # both predictions run in C, which cffi calls without the GIL: on two threads, while this one
+    # fits the black boxes (their results are read where the skills are computed)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        jobs = (pool.submit(fast_loop.predict_closed, start, record_controller(rec), rec.w, rec.y, rec.u, u_hold, **kw),
+                pool.submit(fast.predict_horizons, start, rec.y, rec.u, ts=rec.ts, **kw))
+        return _skills(rec, hs, horizons_s, boxes, jobs)
+
+
+def _skills(rec: Record, hs: list[int], horizons_s: tuple[float, ...], boxes: Boxes | None, jobs) -> RecordComparison:
+    """:func:`_compare`'s figures; ``jobs``: the futures of the closed-loop and the measured-input
+    predictions."""
+    closed: dict | None = None
+    measured: dict | None = None
     fit = fit_blocks(rec.t) if boxes is None else np.ones(rec.n, bool)
     roles = (("fit blocks", fit), ("held-out blocks", ~fit)) if boxes is None else (("record", fit),)
     k = np.arange(rec.n)
@@ -180,6 +189,8 @@ def _compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
         cv = bb.constant_velocity(rec.y, h, rec.ts)
         origin_same_block = np.zeros(rec.n, bool)       # (a horizon is far shorter than a block)
         origin_same_block[h:] = fit[h:] == fit[:-h]
+        if closed is None or measured is None:
+            closed, measured = jobs[0].result(), jobs[1].result()
         for role, blocks in roles:
             ok = (blocks & origin_same_block & (k >= h + int(round(SETTLE_S / rec.ts)))
                   & np.isfinite(closed["y_pred"][q]) & np.isfinite(measured["y_pred"][q]) & np.isfinite(cv)

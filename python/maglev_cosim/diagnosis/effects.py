@@ -68,10 +68,12 @@ class Effect(Parameterization):
         return {**current, **self.to_params(z)}
 
     def scan(self, scored: Sequence[tuple[list[float], float]],
-             cost: Callable[[list[float]], float]) -> list[tuple[list[float], float]]:
+             cost: Callable[[list[float]], float],
+             costs: Callable[[list[list[float]]], list[float]] | None = None) -> list[tuple[list[float], float]]:
         """Further starts, placed from the costs of the first (``scored``: each start's coordinates
-        and its cost with the baseline held; ``cost`` gives another's): those it adds, each with its
-        cost. None by default: the starts of :meth:`starts` cover the effect's range."""
+        and its cost with the baseline held; ``cost`` gives another's, ``costs`` those of a list,
+        evaluated side by side): those it adds, each with its cost. None by default: the starts of
+        :meth:`starts` cover the effect's range."""
         return []
 
     def prefit(self, prob: Problem, current: Mapping[str, float], z: list[float]) -> list[float]:
@@ -163,11 +165,14 @@ class CurrentSaturation(Effect):
         return [[v] for v in limit_starts(demand, self.coords[0].lo, self.coords[0].hi)]
 
     def scan(self, scored: Sequence[tuple[list[float], float]],
-             cost: Callable[[list[float]], float]) -> list[tuple[list[float], float]]:
+             cost: Callable[[list[float]], float],
+             costs: Callable[[list[list[float]]], list[float]] | None = None) -> list[tuple[list[float], float]]:
         """The limit's cost profile between its starts, scanned (:func:`profile_scan`): a limit just
         above the one at which the model loses the ball has a minimum a milliampere wide, which
         the quantile starts step over."""
-        found = profile_scan({z[0]: c for z, c in scored}, lambda v: cost([v]), self.coords[0].hi - self.coords[0].lo)
+        many = None if costs is None else (lambda vs: costs([[v] for v in vs]))
+        found = profile_scan({z[0]: c for z, c in scored}, lambda v: cost([v]), self.coords[0].hi - self.coords[0].lo,
+                             many)
         return [([v], c) for v, c in found]
 
 
@@ -215,7 +220,8 @@ LIMIT_SCAN_TOL = 2e-4
 LIMIT_SCAN_PROBES = 7
 
 
-def profile_scan(known: Mapping[float, float], cost: Callable[[float], float], span: float) -> list[tuple[float, float]]:
+def profile_scan(known: Mapping[float, float], cost: Callable[[float], float], span: float,
+                 costs: Callable[[list[float]], list[float]] | None = None) -> list[tuple[float, float]]:
     """A coarse scan of a one-parameter cost profile before local search, where the profile is not
     smooth. A limit's is not: below the limit at which the model loses the loop (the ball falls
     away and the limited current cannot bring it back) the cost jumps by orders of magnitude, and
@@ -230,7 +236,8 @@ def profile_scan(known: Mapping[float, float], cost: Callable[[float], float], s
     pair of neighbours whose costs differ :data:`LIMIT_SCAN_CLIFF`-fold, bisection down to
     :data:`LIMIT_SCAN_TOL` of ``span``, then probes at that width times 1, 2, 4, ... on the cheaper
     side; (3) a finer grid between the neighbours of the cheapest point. Returns the points it
-    evaluated, each with its cost."""
+    evaluated, each with its cost. ``costs``: the costs of a list of points at once (the grids'
+    points side by side; the same costs as ``cost`` one by one)."""
     pts = dict(known)
     if len(pts) < 2:
         return []
@@ -243,9 +250,18 @@ def profile_scan(known: Mapping[float, float], cost: Callable[[float], float], s
             pts[v] = out[v] = c if math.isfinite(c) else math.inf
         return pts[v]
 
+    def grid(vs: Sequence[float]) -> None:
+        # the grid's new points, in order: all at once with ``costs``, else one by one
+        new = list(dict.fromkeys(float(v) for v in vs if float(v) not in pts))
+        if costs is not None and len(new) > 1:
+            for v, c in zip(new, costs(new)):
+                c = float(c)
+                pts[v] = out[v] = c if math.isfinite(c) else math.inf
+        for v in vs:
+            at(v)
+
     lo, hi = min(pts), max(pts)
-    for v in np.linspace(lo, hi, LIMIT_SCAN_GRID):
-        at(v)
+    grid(np.linspace(lo, hi, LIMIT_SCAN_GRID))
     tol = LIMIT_SCAN_TOL * span
     xs = sorted(pts)
     for a, b in zip(xs[:-1], xs[1:]):
@@ -271,8 +287,7 @@ def profile_scan(known: Mapping[float, float], cost: Callable[[float], float], s
     xs = sorted(pts)
     k = int(np.argmin([pts[v] for v in xs]))
     left, right = xs[max(k - 1, 0)], xs[min(k + 1, len(xs) - 1)]
-    for v in np.linspace(left, right, 10)[1:-1]:
-        at(v)
+    grid(np.linspace(left, right, 10)[1:-1])
     return sorted(out.items())
 
 

@@ -32,7 +32,7 @@ from .acceptance import ALPHA, CRITERION, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .metrics import nrmse_fit
-from .problem import Fit, Parameterization, Problem, cost_on, fit, residuals, stacked
+from .problem import Fit, Parameterization, Problem, cost_on, fit, residuals, stacked, thread_map
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
 from .result import Json
@@ -211,10 +211,14 @@ def _weighted(prob: Problem, values: Mapping[str, float]) -> Problem:
 
 # ----------------------------------------------------------------------------- 2. search
 
-def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, max_nfev: int = 60) -> dict:
+def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, max_nfev: int = 60,
+                  prepared: Mapping | None = None) -> dict:
     """Fits one effect together with the recalibrated baseline on the fit blocks; effects
     selected in earlier rounds stay in the model (in ``current``) while this one is fitted.
-    ``max_nfev``: the least-squares evaluations allowed (a screen takes :data:`SCREEN_NFEV`)."""
+    ``max_nfev``: the least-squares evaluations allowed (a screen takes :data:`SCREEN_NFEV`).
+    ``prepared``: the ``prepared`` entry of this candidate's screen on the same problem and
+    ``current`` (its scored starts and the prefit of the chosen one), which the fit to convergence
+    takes instead of computing them again: the same numbers."""
     t0 = time.process_time()
     eff = CATALOGUE[effect_name]
     origin = {p: prob.base[p] for p in BASELINE.params}     # where the calibration started from
@@ -222,23 +226,37 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
 
     def best_start(cur: dict[str, float]) -> tuple[float, list[float], dict[str, float]]:
         # the best start with the baseline held: of the effect's starts, and of its scan from their costs
-        scored: list[tuple[list[float], float, dict[str, float]]] = []
+
+        def evaluate(z: Sequence[float]) -> tuple[list[float], float, dict[str, float]]:
+            vals = eff.start_values(list(z), prob, cur)
+            return list(z), float(np.mean(residuals(prob, vals) ** 2)), vals
+
+        # the starts are independent replays: side by side (thread_map keeps their order)
+        scored = thread_map(evaluate, eff.starts(prob, cur))
 
         def cost(z: Sequence[float]) -> float:
-            vals = eff.start_values(list(z), prob, cur)
-            c = float(np.mean(residuals(prob, vals) ** 2))
-            scored.append((list(z), c, vals))
-            return c
+            scored.append(evaluate(z))
+            return scored[-1][1]
 
-        for z in eff.starts(prob, cur):
-            cost(z)
-        eff.scan([(z, c) for z, c, _ in scored], cost)
+        def costs(zs: list[list[float]]) -> list[float]:
+            got = thread_map(evaluate, zs)
+            scored.extend(got)
+            return [c for _, c, _ in got]
+
+        eff.scan([(z, c) for z, c, _ in scored], cost, costs)
         c, z, vals = min(((c, z, vals) for z, c, vals in scored), key=lambda t: t[0])
         return c, z, vals
 
-    def fit_from(cur: dict[str, float], start: tuple[float, list[float], dict[str, float]]):
+    prefits: dict[int, list[float]] = dict(prepared["prefit"]) if prepared else {}
+
+    def fit_from(cur: dict[str, float], start: tuple[float, list[float], dict[str, float]], key: int | None = None):
         _, best, best_vals = start
-        best = eff.prefit(prob, cur, list(best))
+        if key is not None and key in prefits:
+            best = list(prefits[key])
+        else:
+            best = eff.prefit(prob, cur, list(best))
+            if key is not None:
+                prefits[key] = list(best)
         # the start's values besides the fitted coordinates (say the force exponent's pivot) stay
         f = fit(prob.with_base(best_vals), [BASELINE, eff], [BASELINE.to_coords(best_vals), best], max_nfev=max_nfev)
         return {**cur, **best_vals, **f.values}, f
@@ -249,23 +267,33 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
     bases = [current]
     if eff.absorbed_by and any(current[p] != origin[p] for p in BASELINE.params):
         bases.append({**current, **origin})
-    starts = [best_start(b) for b in bases]
+    starts = list(prepared["starts"]) if prepared else [best_start(b) for b in bases]
     k = min(range(len(bases)), key=lambda j: starts[j][0])
-    values, f = fit_from(bases[k], starts[k])
-    nfev, retried = f.nfev, k > 0
+    spare = None
+    if len(starts) > 1:
+        # An effect the baseline can absorb ends off from the better start on every record without
+        # it, and is then fitted from the other base: the two fits side by side (the second is
+        # spent in vain only where the effect is there).
+        (values, f), spare = thread_map(lambda j: fit_from(bases[j], starts[j], j), [k, 1 - k])
+    else:
+        values, f = fit_from(bases[k], starts[k], k)
+    nfev, retried, converged = f.nfev, k > 0, f.converged
     if (eff.is_off(values) and eff.absorbed_by) or on_bounds(values)[0]:
         # From the chosen start the effect ended off, or the baseline on a bound: retried from the
         # other baseline (where the calibration started, the effect's starts placed anew).
         other = {**current, **origin} if k == 0 else current
-        again, f2 = fit_from(other, starts[1 - k] if len(starts) > 1 else best_start(other))
-        nfev += f2.nfev
+        again, f2 = spare if spare is not None else fit_from(other, best_start(other))
+        nfev, converged = nfev + f2.nfev, converged and f2.converged
         if f2.cost < f.cost or (on_bounds(values)[0] and not on_bounds(again)[0]):
             values, f, retried = again, f2, k == 0
+    # converged: every fit ended by a tolerance within max_nfev, so that any larger max_nfev ends the
+    # same (the same iterations): a screen that converged is the fit to convergence
     return {"effect": effect_name, "values": values, "fit_cost": f.cost, "nfev": nfev, "retried": retried,
-            "cpu_s": time.process_time() - t0}
+            "converged": converged, "cpu_s": time.process_time() - t0,
+            "prepared": {"starts": starts, "prefit": prefits}}
 
 
-def _worker(args: tuple[Problem, dict[str, float], str, int]) -> dict:
+def _worker(args: tuple[Problem, dict[str, float], str, int, Mapping | None]) -> dict:
     return fit_candidate(*args)
 
 
@@ -300,7 +328,7 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
     must also pass the likelihood-ratio test on the blocks it was fitted on (:data:`FIT_SIDE_TEST`)."""
     vals = res["values"]
     r_hold = residuals(prob, vals, hold_mask)
-    hold_after, n_eff, _ = _lr(r_hold, hold_before)
+    hold_after, n_eff, _ = _lr(r_hold, hold_before)    # cost_on's figure, from the same replay
     eff = CATALOGUE[res["effect"]]
     ok, stats = accept(hold_before, hold_after, n_eff, len(eff.params))
     if eff.is_off(vals):
@@ -503,6 +531,13 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                     for e in remaining}
             order = sorted(remaining, key=lambda e: -work[e])
             results: dict[str, tuple[dict, dict]] = {}
+            prepared: dict[str, Mapping] = {}     # each candidate's scored starts, from its screen
+            converged: set[str] = set()           # candidates whose screen converged (fit() ended by a tolerance)
+            # The effects the baseline can absorb are fitted to convergence whatever the screens find:
+            # with a pool, those fits (the round's longest) go first, beside the screens, rather than
+            # after them on one core while the other idles. Judged in the fit stage, in its order.
+            early = {e: pool.submit(_worker, (prob, current, e, FULL_NFEV, None))
+                     for e in order if CATALOGUE[e].absorbed_by} if pool else {}
             for stage, nfev in (("screen", SCREEN_NFEV), ("fit", FULL_NFEV)):
                 if stage == "fit":
                     # only the candidates the screen found promising are fitted to convergence, and
@@ -515,12 +550,28 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                         break
                     say(f"  fitting {len(order)} of them to convergence: {', '.join(order)}")
                 # (an effect the baseline can absorb is fitted to convergence whatever its screen: none)
-                jobs = [(prob, current, e, nfev) for e in order if stage == "fit" or not CATALOGUE[e].absorbed_by]
-                for k, res in enumerate(pool.map(_worker, jobs) if pool else map(_worker, jobs), 1):
-                    entry, vals = judge(prob, hold_mask, hold_before, res, rnd, fit_before)
-                    entry["stage"] = stage
-                    results[res["effect"]] = (entry, vals)
-                    cpu[res["effect"]] = res["cpu_s"]
+                # (a fit to convergence takes its screen's starts: prepared[e])
+                jobs = [(prob, current, e, nfev, prepared.get(e)) for e in order
+                        if stage == "fit" or not CATALOGUE[e].absorbed_by]
+                # a screen whose fits converged within SCREEN_NFEV is its fit to convergence: not fitted again
+                done = {e for e in order if stage == "fit" and e in converged}
+                rest = iter(pool.map(_worker, [j for j in jobs if j[2] not in early and j[2] not in done]) if pool
+                            else map(_worker, [j for j in jobs if j[2] not in done]))
+                outs = (early[j[2]].result() if j[2] in early else (None, j[2]) if j[2] in done else next(rest)
+                        for j in jobs)
+                for k, res in enumerate(outs, 1):
+                    if isinstance(res, tuple):        # (None, effect): its converged screen, judged alike
+                        entry, vals = results[res[1]]
+                        entry = {**entry, "stage": stage}
+                        results[res[1]] = (entry, vals)
+                    else:
+                        prepared[res["effect"]] = res.pop("prepared")
+                        if stage == "screen" and res["converged"]:
+                            converged.add(res["effect"])
+                        entry, vals = judge(prob, hold_mask, hold_before, res, rnd, fit_before)
+                        entry["stage"] = stage
+                        cpu[res["effect"]] = res["cpu_s"]
+                        results[res["effect"]] = (entry, vals)
                     say(f"  [{k}/{len(jobs)}] {entry['effect']} ({stage}): "
                         + ", ".join(f"{p} = {v:.4g}" for p, v in entry["parameters"].items())
                         + f"; held-out cost change {-100 * entry['held_out_gain']:+.1f} % "
@@ -680,11 +731,15 @@ def uncertainty(prob: Problem | Sequence[Problem], values: Mapping[str, float],
     parts = [residuals(p, {**values, **dict(zip(names, x))}) for p in ([prob] if isinstance(prob, Problem) else prob)]
     r0 = np.concatenate(parts)
     jac = np.empty((len(r0), len(names)))
-    for k in range(len(names)):
+
+    def column(k: int) -> np.ndarray:
         h = 1e-4 * sc[k]
         xp = x.copy()
         xp[k] += h
-        jac[:, k] = (stacked(prob, {**values, **dict(zip(names, xp))}) - r0) / (h / sc[k])
+        return (stacked(prob, {**values, **dict(zip(names, xp))}) - r0) / (h / sc[k])
+
+    for k, col in enumerate(thread_map(column, range(len(names)))):    # one replay each, side by side
+        jac[:, k] = col
     pieces = [half for r in parts for half in (r[:len(r) // 2], r[len(r) // 2:])]
     inflation = max(len(q) / max(effective_samples(q), 1.0) for q in pieces)
     s2 = float(np.sum(r0**2)) / max(len(r0) - len(names), 1)

@@ -3,8 +3,12 @@ the y and u errors, and the samples that count; least squares over parameterizat
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import inspect
+import os
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -16,6 +20,29 @@ from .replay import HORIZON_S, NoiseModel, horizon_samples, predict, replay
 #: with each catalogue lag, delay or exponent: at most 1.7e-8 MU in y and 2.1e-7 MU in u (a
 #: thousandth of the sensor noise and of u's noise response), and each replay 1.7 times faster.
 FIT_SOLVER_STEP = 2.5e-4
+
+#: Threads that evaluate independent replays side by side: a fit's finite-difference Jacobian
+#: columns and a batch of an effect's starts (:func:`thread_map`). The replays run in C with the GIL
+#: released (cffi), so two threads use two cores; the numbers are those of one thread, evaluation by
+#: evaluation. Inside the search's worker processes they keep a core busy that would idle while the
+#: other worker has no job left (the round's last, longest fit).
+THREADS = min(2, os.cpu_count() or 1)
+
+#: Whether scipy's least squares takes ``workers`` (SciPy 1.16 on); older ones take the columns one by one.
+_LSQ_WORKERS = "workers" in inspect.signature(least_squares).parameters
+
+_T = TypeVar("_T")
+_R = TypeVar("_R")
+
+
+def thread_map(fn: Callable[[_T], _R], items: Iterable[_T]) -> list[_R]:
+    """``[fn(x) for x in items]``, in order, on :data:`THREADS` threads (for replays, which release
+    the GIL)."""
+    items = list(items)
+    if THREADS <= 1 or len(items) < 2:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(max_workers=min(THREADS, len(items))) as ex:
+        return list(ex.map(fn, items))
 
 
 @dataclass(frozen=True)
@@ -104,7 +131,9 @@ def residuals(prob: Problem, values: Mapping[str, float], mask: np.ndarray | Non
     """Weighted residual vector (y errors, then u errors) of a replay with ``values`` applied.
     A parameter set the plant rejects (say x_0 pushed below x_max) costs as much as a ball
     lying on a stop: the search then turns away from it instead of failing."""
-    m = (prob.mask if mask is None else mask) & prob.compared()
+    m = prob.mask if mask is None else mask
+    if prob.noise is not None:          # prediction mode: only where a prediction ends (free run: every sample)
+        m = m & prob.compared()
     try:
         sim = prob.simulate(values)
     except ValueError:
@@ -132,6 +161,7 @@ class Fit:
     values: dict[str, float]
     cost: float                      # mean squared weighted residual on the fit samples
     nfev: int = 0
+    converged: bool = True           # ended by a tolerance, not by max_nfev: more evaluations change nothing
 
 
 def _values(parts: Sequence[Parameterization], z: np.ndarray) -> dict[str, float]:
@@ -159,6 +189,9 @@ def fit(prob: Problem | Sequence[Problem], parts: Sequence[Parameterization], z0
     def fun(z: np.ndarray) -> np.ndarray:
         return stacked(prob, _values(parts, z * sc))
 
-    r = least_squares(fun, zs, bounds=(lo, hi), diff_step=1e-6, x_scale=1.0, max_nfev=max_nfev,
-                      ftol=1e-6, xtol=1e-6, gtol=1e-10)
-    return Fit(_values(parts, r.x * sc), float(np.mean(r.fun**2)), int(r.nfev))
+    # the Jacobian's columns (one replay each) on THREADS threads: the same evaluations as one by one
+    with ThreadPoolExecutor(max_workers=THREADS) as ex:
+        par = {"workers": ex.map} if _LSQ_WORKERS and THREADS > 1 else {}
+        r = least_squares(fun, zs, bounds=(lo, hi), diff_step=1e-6, x_scale=1.0, max_nfev=max_nfev,
+                          ftol=1e-6, xtol=1e-6, gtol=1e-10, **par)
+    return Fit(_values(parts, r.x * sc), float(np.mean(r.fun**2)), int(r.nfev), bool(r.status != 0))

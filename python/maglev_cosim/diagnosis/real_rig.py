@@ -58,14 +58,24 @@ SETTLE_S = 0.5
 #: Parameters :func:`calibrate` fits, by drive type (multiplicative factors on the rig's values).
 CALIBRATED = {"voltage": ("k_e", "z_e", "R_c", "k_DA", "u_0"), "current": ("k_c", "x_0", "k_i", "T_a")}
 #: The coil's parameters, by drive type: fitted on the current from the actuator signal alone
-#: (:func:`calibrate_coil`), on the calibration records and again on every record (their drift).
-COIL = {"voltage": ("R_c", "k_DA", "u_0"), "current": ("k_i",)}
-#: The coil stage on the calibration records fits these, :data:`COIL` and the drive's transport
+#: (:func:`calibrate_coil`), on the calibration records (but ``kappa_R``: :data:`COIL_FIT`) and again
+#: on every segment (their drift between runs, and the resistance's warming during each).
+COIL = {"voltage": ("R_c", "k_DA", "u_0", "kappa_R"), "current": ("k_i",)}
+#: Bounds of the coil resistance's drift ``kappa_R`` [1/s] (``R_c·(1 + kappa_R·t)``, t from the segment's
+#: start: the winding warming during the run) that :func:`calibrate_coil` searches: ±1 %/s, a copper
+#: winding warming or cooling by 2.5 K a second, far beyond a levitating coil's few watts. On the nine
+#: shared Inteco records each segment's own fit found +0.045 to +0.11 %/s (every one of them warming).
+COIL_DRIFT_BOUNDS = (-0.01, 0.01)
+#: The coil stage on the calibration records fits these, :data:`COIL` (but ``kappa_R``) and the drive's transport
 #: delay ``T_d`` (the duty a real-time controller computes at one sample reaches the coil about a
 #: sample later: computation, output, the PWM period). The delay is the hardware's and software's,
 #: the same in every run, so each segment's own coil keeps it (on the nine shared Inteco records
 #: the current from the duty fits 89.4 % median without it, 91.2 % with 1.5 ms; every record gains).
-COIL_FIT = {d: (*names, "T_d") for d, names in COIL.items()}
+#: The resistance's drift ``kappa_R`` is left to each segment's own coil: it is the run's own warming,
+#: from the temperature the winding starts at, and one value shared by the calibration records (whose
+#: resistances differ by several per cent between runs) took 0.145 %/s, above every segment's own
+#: (0.048 to 0.109 %/s), standing in for those differences.
+COIL_FIT = {d: (*(n for n in names if n != "kappa_R"), "T_d") for d, names in COIL.items()}
 #: Bounds of the coil stage's delay [s] (its start: 1 ms, one sample of a 1 kHz rig).
 COIL_DELAY_BOUNDS = (0.0, 0.01)
 def mechanics_names(params: PlantParams) -> tuple[str, ...]:
@@ -207,7 +217,7 @@ def predict(rig: Rig, r: RigRecord, params: PlantParams, horizon_s: float, *, us
     return _cached(key, lambda: fast.predict_measured(
         start, r.y, r.u, ts=r.ts, q_force=nz["q_force"], f_force=nz["f_force"], r_sensor=nz["r_sensor"], horizon=h,
         stride=stride, current=r.current if use_current else None, r_current=nz["r_current"],
-        correction=nz.get("correction"), offset=offset))
+        correction=nz.get("correction"), offset=offset, coil_free=not use_current))
 
 
 def predict_many(rig: Rig, r: RigRecord, params: PlantParams, horizons_s: Sequence[float], *, stride: int = 1,
@@ -359,9 +369,12 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
                    names: Sequence[str] | None = None) -> tuple[PlantParams, dict]:
     """The coil's parameters (default :data:`COIL` of the rig's drive) that make the current
     computed from the actuator signal alone (the filter never sees the measured current; the gap
-    is tracked) fit the measured current: least squares on factors in [0.5, 2] (offsets ±1 V).
-    Returns the parameters and a summary (``values``, ``fit`` % per record, ``on_bounds``); with
-    no measured current, the parameters unchanged and ``None``."""
+    is tracked) fit the measured current: least squares on factors in [0.5, 2] (offsets ±1 V; the
+    delay ``T_d`` within :data:`COIL_DELAY_BOUNDS`, the resistance's drift ``kappa_R`` within
+    :data:`COIL_DRIFT_BOUNDS`). Returns the parameters and a summary (``values``, ``sigma``: ±1σ from
+    the Jacobian, widened for the residual's correlation from sample to sample (an AR(1) count of
+    independent samples), ``fit`` % per record, ``on_bounds``); with no measured current, the
+    parameters unchanged and ``None``."""
     names = tuple(names or COIL[rig.drive])
     use = [r for r in records if r.current is not None]
     if not use:
@@ -370,10 +383,13 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
     additive = np.array([n == "u_0" for n in names])
     # the delay in ms, absolute (from 0, which a factor could not leave)
     delay = np.array([n == "T_d" for n in names])
+    # the resistance's drift in 1e-3/s, absolute (from 0 too)
+    drift = np.array([n == "kappa_R" for n in names])
+    absolute = delay | drift
     nz = noise_defaults(rig, params)
 
     def make(z: np.ndarray) -> PlantParams:
-        vals = np.where(delay, 1e-3 * z, np.where(additive, base + z, base * z))
+        vals = np.where(absolute, 1e-3 * z, np.where(additive, base + z, base * z))
         vals = np.where(delay & (vals < 1e-6), 0.0, vals)   # a delay under 1 µs is off
         return params.replace(**dict(zip(names, vals)))
 
@@ -404,16 +420,38 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
         except ValueError:
             return np.full(sum(len(r.y) // 3 + 1 for r in use), 10.0)
 
-    lo = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[0], np.where(additive, -1.0, 0.5))
-    hi = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[1], np.where(additive, 1.0, 2.0))
-    z0 = np.where(delay, np.clip(1e3 * base, 1.0, None), np.where(additive, 0.0, 1.0))
+    lo = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[0],
+                  np.where(drift, 1e3 * COIL_DRIFT_BOUNDS[0], np.where(additive, -1.0, 0.5)))
+    hi = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[1],
+                  np.where(drift, 1e3 * COIL_DRIFT_BOUNDS[1], np.where(additive, 1.0, 2.0)))
+    z0 = np.where(delay, np.clip(1e3 * base, 1.0, None), np.where(drift, 1e3 * base, np.where(additive, 0.0, 1.0)))
     fun, jac = _threaded_jacobian(resid, lo, hi, 1e-4)
-    sol = least_squares(fun, np.clip(z0, lo, hi), jac=jac, bounds=(lo, hi), x_scale=np.where(delay, 0.5, 0.05),
-                        max_nfev=30)
+    sol = least_squares(fun, np.clip(z0, lo, hi), jac=jac, bounds=(lo, hi),
+                        x_scale=np.where(delay, 0.5, 0.05), max_nfev=30)
     p = make(sol.x)
     return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
+               "sigma": _coil_sigma(sol, names, base, additive, absolute),
                "fit": {r.label: nrmse_fit(*reversed(currents(p, r))) for r in use},
                "on_bounds": [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]}
+
+
+def _coil_sigma(sol, names: Sequence[str], base: np.ndarray, additive: np.ndarray, absolute: np.ndarray
+                ) -> dict[str, float]:
+    """±1σ of :func:`calibrate_coil`'s parameters in their own units: the Jacobian's covariance at the
+    solution, scaled by the residual's variance and widened by ``sqrt((1 + ρ)/(1 − ρ))`` for its
+    correlation ρ from one residual to the next (an AR(1) residual: fewer independent samples than
+    rows; the current's model errors are slow beside its 1 kHz samples)."""
+    e = np.asarray(sol.fun, float)
+    n, k = len(e), len(sol.x)
+    rho = float(np.clip(np.corrcoef(e[:-1], e[1:])[0, 1], 0.0, 0.99)) if n > 3 and np.std(e) > 0 else 0.0
+    try:
+        cov = np.linalg.pinv(sol.jac.T @ sol.jac) * (float(e @ e) / max(n - k, 1)) * (1 + rho) / (1 - rho)
+        sz = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    except np.linalg.LinAlgError:
+        sz = np.full(k, np.nan)
+    # z: factors on the start (R_c, k_DA), volts (u_0), thousandths (T_d [ms], kappa_R [1e-3/s])
+    return {nm: float(sz[j] * (1e-3 if absolute[j] else (1.0 if additive[j] else abs(base[j]))))
+            for j, nm in enumerate(names)}
 
 
 #: The filter's disturbance model, calibrated with the plant (log-factors on :func:`noise_defaults`):
@@ -1556,6 +1594,14 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
                        + "; ".join(f"{f['label']} {f['drift']['change_pct_weight']:+.1f} ± "
                                    f"{f['drift']['change_two_sigma']:.1f}" for f in drifting)
                        + ": a force or a gain that changes during the run (drift.png)")
+    heating = [(x["label"], x["own_coil"]) for x in [s for e in result["records"] for s in e["segments"]]
+               + result["validation"] if (x.get("own_coil") or {}).get("kappa_R_sigma")]
+    if heating:
+        found = [(lb, c) for lb, c in heating if abs(c["kappa_R"]) > 2 * c["kappa_R_sigma"]]
+        reasons.append(f"the coil resistance changes during the run beyond its 2σ in {len(found)} of {len(heating)} "
+                       "segment(s) (kappa_R, each segment's own coil, %/s ± 2σ; its model uses it only beyond 2σ): "
+                       + "; ".join(f"{lb} {100 * c['kappa_R']:+.3f} ± {200 * c['kappa_R_sigma']:.3f}" for lb, c in heating)
+                       + ": the winding warming (copper: +0.39 %/K) or cooling")
     held_skill = [v["after"]["position"]["20 ms"]["skill_vs_stays_put"] for v in result["validation"]]
     held_skill = [k for k in held_skill if np.isfinite(k)]
     if held_skill and np.median(held_skill) < MIN_SKILL:
@@ -1636,14 +1682,9 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     coils = [x["own_coil"] for x in [s for e in result["records"] for s in e["segments"]] + result["validation"]
              if x.get("own_coil")]
     if len(coils) > 1:
-        result["coil_drift"] = {n: {"min": min(c[n] for c in coils), "max": max(c[n] for c in coils),
-                                    "relative": float(np.ptp([c[n] for c in coils]) / abs(np.mean([c[n] for c in coils])))
-                                    if n != "u_0" else float(np.ptp([c[n] for c in coils]))}
-                                for n in coils[0]}
+        result["coil_drift"] = _spread(coils)
     if len(own) > 1:
-        result["spread"] = {n: {"min": min(o[n] for o in own), "max": max(o[n] for o in own),
-                                "relative": float(np.ptp([o[n] for o in own]) / abs(np.mean([o[n] for o in own])))}
-                            for n in own[0]}
+        result["spread"] = _spread(own)
     result["parameters"] = {**{n: float(getattr(params, n)) for n in (*COIL_FIT[rig.drive], *mech)},
                             **result.get("effects", {}).get("parameters", {}),
                             **result.get("second_force_lag", {}).get("values", {})}
@@ -1729,9 +1770,24 @@ def _calibrated_rig_fmu(rig: Rig, result: dict, params: PlantParams, train, out:
     return {"file": str(path), "records": provenance["records"]}
 
 
+def _spread(values: Sequence[dict]) -> dict:
+    """Each parameter's least and largest value over the segments' ``values`` (their ``…_sigma`` left
+    out) and its spread: relative to the mean (``(max − min)/|mean|``), or for an offset or a drift
+    that may be near 0 (``u_0``, ``kappa_R``) the plain ``max − min``."""
+    out = {}
+    for n in values[0]:
+        if n.endswith("_sigma"):
+            continue
+        v = [c[n] for c in values]
+        out[n] = {"min": min(v), "max": max(v),
+                  "relative": float(np.ptp(v)) if n in ("u_0", "kappa_R") else float(np.ptp(v) / abs(np.mean(v)))}
+    return out
+
+
 def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> tuple[PlantParams, dict | None]:
     """The model of one segment with its own coil (:func:`calibrate_coil` on the segment alone: a
-    resistance that follows heating, a drive gain that differs between runs) and its own force gain
+    resistance that differs between runs and warms during the run, ``kappa_R``, used only where its
+    estimate lies beyond its 2σ of 0, a drive gain that differs between runs) and its own force gain
     (:func:`own_force_gain`: the force law's gain times the factor that makes it carry the ball's
     weight at the segment's measured gap and current) once the model is calibrated; the segment's
     values, or ``None``."""
@@ -1739,6 +1795,15 @@ def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> 
         return params, None
     p, info = calibrate_coil(rig, [r], params)
     values = dict((info or {}).get("values") or {})
+    if "kappa_R" in values:   # the heating's drift is a finding: with its ±1σ
+        sigma = float(info["sigma"]["kappa_R"])
+        if not abs(values["kappa_R"]) > 2 * sigma:
+            # within its 2σ of none: the segment's model goes without it (the rest refitted so), the
+            # estimate is still reported
+            p, info = calibrate_coil(rig, [r], params.replace(kappa_R=0.0),
+                                     names=[n for n in COIL[rig.drive] if n != "kappa_R"])
+            values = {**values, **info["values"]}
+        values["kappa_R_sigma"] = sigma
     gain = mechanics_names(p)[0]
     factor = own_force_gain(rig, r, p)
     if np.isfinite(factor) and FORCE_BALANCE[0] <= 1 / factor <= FORCE_BALANCE[1]:
@@ -1833,8 +1898,9 @@ def _markdown(res: dict, plots: list[Path]) -> str:
         if res.get("spread"):
             lines += ["", "Each record calibrated on its own (the spread between records):", "",
                       "| parameter | min | max | spread (max − min)/mean |", "|---|---|---|---|"]
-            lines += [f"| {n} | {s['min']:.6g} | {s['max']:.6g} | {100 * s['relative']:.1f} % |"
-                      for n, s in res["spread"].items()]
+            lines += [f"| {n} | {s['min']:.6g} | {s['max']:.6g} | "
+                      + (f"{s['relative']:.3g} {units.get(n, '')} (max − min) |" if n in ("u_0", "kappa_R")
+                         else f"{100 * s['relative']:.1f} % |") for n, s in res["spread"].items()]
         lines.append("")
     ef = res.get("effects")
     if ef:

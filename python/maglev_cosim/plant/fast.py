@@ -146,14 +146,17 @@ def check_params(params: Mapping[str, float] | None) -> None:
 
 
 def _filter(m: SimpleNamespace, q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int,
-            current_input: bool = False, f_sensor: float = 0.0, r_coloured: float = 0.0, offset: int = 0):
+            current_input: bool = False, f_sensor: float = 0.0, r_coloured: float = 0.0, offset: int = 0,
+            coil_free: bool = False):
     """The C filter settings (``MaglevFilter``, ``c/maglev_replay.h``) of both prediction entry points.
     ``f_sensor`` [Hz], ``r_coloured`` [MU]: corner and RMS of the coloured part of the sensor noise
-    (``f_sensor`` 0: white only)."""
+    (``f_sensor`` 0: white only). ``coil_free``: without a measured current, the coil current runs
+    free of the reading's updates (the coil model alone, along the tracked position)."""
     return m.ffi.new("MaglevFilter *", {"q_force": float(q_force), "f_force": float(f_force),
                                         "r_sensor": float(r_sensor), "horizon": int(horizon), "stride": int(stride),
                                         "current_input": int(bool(current_input)), "f_sensor": float(f_sensor),
-                                        "r_coloured": float(r_coloured), "offset": int(offset)})
+                                        "r_coloured": float(r_coloured), "offset": int(offset),
+                                        "coil_free": int(bool(coil_free))})
 
 
 def _measured_inputs(y: np.ndarray, u: np.ndarray, current: np.ndarray | None
@@ -181,7 +184,7 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
                      q_force: float, f_force: float, r_sensor: float, horizon: int, stride: int = 1,
                      current: np.ndarray | None = None, r_current: float = 0.0,
                      current_input: bool = False, correction: Mapping | None = None, f_sensor: float = 0.0,
-                     r_coloured: float = 0.0, offset: int = 0) -> dict[str, np.ndarray]:
+                     r_coloured: float = 0.0, offset: int = 0, coil_free: bool = False) -> dict[str, np.ndarray]:
     """The prediction-error replay of a record whose controller is unknown, in one C call
     (``maglev_replay_predict_measured``): the filter follows the measured reading ``y`` [MU] (and
     the measured coil ``current`` [A], white noise of RMS ``r_current``, when given) and predicts
@@ -194,12 +197,16 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     ``x_s``, ``v_s``, ``v_c``, ``coef``), a force that is a function of position and velocity, in the
     filter's model and its predictions (``maglev_replay_predict_corrected``). ``f_sensor`` [Hz],
     ``r_coloured`` [MU]: the coloured part of the sensor noise beside the white ``r_sensor`` (0: none).
-    ``offset``: the predictions start at the samples ``k`` with ``k % stride == offset``."""
+    ``offset``: the predictions start at the samples ``k`` with ``k % stride == offset``. ``coil_free``
+    (without ``current``): the coil current is never corrected from the reading (its covariance with
+    the other states dropped), so ``i_pred`` is the coil model's free run from ``u`` along the tracked
+    position: the current "from the actuator signal alone"."""
     m = _lib()
     pv = _param_vector(_as_mapping(params))
     arrays, n, cur = _measured_inputs(y, u, current)
     out = {k: np.empty(n) for k in ("y_pred", "i_pred", "innov", "innov_var", "d", "d_sd")}
-    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input, f_sensor, r_coloured, offset)
+    filt = _filter(m, q_force, f_force, r_sensor, horizon, stride, current_input, f_sensor, r_coloured, offset,
+                   coil_free)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     # (the corrected entry point with NULL is the measured one: maglev_replay.c)

@@ -58,16 +58,18 @@ class ReferencePlant:
             return max(volts, p.V_min)
         return min(max(p.k_i * volts, 0.0), p.i_max)
 
-    def _coil(self, volts: float, i: float, x: float, v: float) -> float:
-        """di/dt of a voltage drive: d(L(x, i)·i)/dt = V − R_c·i, held at 0 and i_max."""
+    def _coil(self, volts: float, i: float, x: float, v: float, t: float) -> float:
+        """di/dt of a voltage drive at time ``t``: d(L(x, i)·i)/dt = V − R·i with the winding's
+        resistance R = R_c·max(0, 1 + kappa_R·t) (warming during the run), held at 0 and i_max."""
         p = self.p
+        resistance = p.R_c * max(0.0, 1.0 + p.kappa_R * t)
         dL_dx = p.L_x / p.z_L * math.exp(-(p.x_0 - x) / p.z_L)
         L = p.L_0 + p.L_x * math.exp(-(p.x_0 - x) / p.z_L) + p.L_i * math.atan(p.a_i * i - p.b_i)
         if p.L_g > 0:  # the inverse-gap form
             L += p.L_g / (p.x_0 - x)
             dL_dx += p.L_g / (p.x_0 - x) ** 2
         dL_di = p.L_i * p.a_i / (1.0 + (p.a_i * i - p.b_i) ** 2)
-        rate = (volts - p.R_c * i - i * dL_dx * v) / (L + i * dL_di)
+        rate = (volts - resistance * i - i * dL_dx * v) / (L + i * dL_di)
         return 0.0 if (i <= 0 and rate < 0) or (i >= p.i_max and rate > 0) else rate
 
     def _force(self, i: float, x: float, t: float = 0.0) -> float:
@@ -88,7 +90,7 @@ class ReferencePlant:
             x, v, i, F, xs, F2 = z
             dxs = (x - xs) / p.T_y if p.T_y > 0 else 0.0
             if self.volt:
-                di = self._coil(ic, i, x, 0.0 if self.mode else v)
+                di = self._coil(ic, i, x, 0.0 if self.mode else v, t)
             else:
                 di = (ic - i) / p.T_a if p.T_a > 0 else 0.0
             fs = self._force(i if (p.T_a > 0 or self.volt) else ic, x, t)

@@ -1,0 +1,70 @@
+"""The diagnosis's shortcuts give the numbers of the long way (issue 22, item 7): replays side by
+side in threads, a fit's Jacobian columns on threads, a limit's scan evaluated a grid at a time,
+and a candidate's fit to convergence from its screen's starts (the tests time nothing: the bench does)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from maglev_cosim.diagnosis import pipeline, problem
+from maglev_cosim.diagnosis.effects import BASELINE, CATALOGUE, profile_scan
+from maglev_cosim.diagnosis.problem import Problem, fit, thread_map
+from maglev_cosim.diagnosis.replay import baseline_params
+from maglev_cosim.records.record import read_record
+from maglev_cosim.records.synth import synth_record
+
+
+@pytest.fixture(scope="module")
+def prob(tmp_path_factory):
+    path = synth_record(tmp_path_factory.mktemp("speed") / "d.csv", effects={"delay": {"T_d": 0.002}},
+                        reference="steps", duration=3.0, seed=3)
+    rec = read_record(path)
+    return Problem(rec, baseline_params(), 1e-3, 1e-2, np.arange(rec.n) % 1000 < 500)
+
+
+def test_thread_map_keeps_order():
+    assert thread_map(lambda v: v * v, range(7)) == [v * v for v in range(7)]
+    assert thread_map(str, []) == []
+
+
+def test_profile_scan_by_batches_equals_one_by_one():
+    """The grids evaluated a list at a time: the same points, costs and result as one by one."""
+    cliff = lambda v: 1444.0 if v < 0.7605 else (v - 0.761) ** 2 * 1e3 + 0.2     # noqa: E731
+    known = {v: cliff(v) for v in (0.58, 0.66, 0.75, 0.82, 0.93, 1.01)}
+    one, batched, calls = [], [], []
+    a = profile_scan(known, lambda v: one.append(v) or cliff(v), 1.3)
+    b = profile_scan(known, lambda v: batched.append(v) or cliff(v), 1.3,
+                     lambda vs: calls.append(len(vs)) or [cliff(v) for v in vs])
+    assert a == b and len(calls) == 2 and max(calls) > 1 and len(batched) < len(one)
+
+
+def test_threaded_jacobian_fit_equals_serial(prob, monkeypatch):
+    """The fit with its Jacobian's columns on threads ends where the one-by-one fit ends, bit for bit."""
+    eff = CATALOGUE["delay"]
+    start = {**prob.base, "T_d": 1.5e-3}
+    z0 = [BASELINE.to_coords(start), [1.5e-3]]
+    threaded = fit(prob, [BASELINE, eff], z0, max_nfev=6)
+    monkeypatch.setattr(problem, "THREADS", 1)
+    serial = fit(prob, [BASELINE, eff], z0, max_nfev=6)
+    assert threaded.values == serial.values and threaded.cost == serial.cost and threaded.nfev == serial.nfev
+
+
+def test_fit_from_screen_starts_equals_fit_from_scratch(prob):
+    """A candidate's fit to convergence from its screen's prepared starts is the fit from scratch."""
+    current = {p: prob.base[p] for p in BASELINE.params}
+    screen = pipeline.fit_candidate(prob, current, "force_lag", pipeline.SCREEN_NFEV)
+    again = pipeline.fit_candidate(prob, current, "force_lag", 20, screen["prepared"])
+    fresh = pipeline.fit_candidate(prob, current, "force_lag", 20)
+    assert again["values"] == fresh["values"] and again["fit_cost"] == fresh["fit_cost"]
+
+
+def test_converged_screen_is_the_fit_to_convergence(prob):
+    """A candidate whose fits all ended by a tolerance within the screen's evaluations is the fit to
+    convergence: the search takes it instead of fitting it again."""
+    current = {p: prob.base[p] for p in BASELINE.params}
+    screen = pipeline.fit_candidate(prob, current, "delay", 30)
+    if not screen["converged"]:
+        pytest.skip("the screen did not converge on this record")
+    full = pipeline.fit_candidate(prob, current, "delay", pipeline.FULL_NFEV, screen["prepared"])
+    assert full["converged"] and full["values"] == screen["values"] and full["nfev"] == screen["nfev"]
