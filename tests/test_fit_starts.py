@@ -66,8 +66,11 @@ def test_current_saturation_starts_from_the_record_not_from_the_calibrated_offse
         assert any(abs(s - 0.72) < 0.05 for s in starts), (u_0, starts)     # one near the truth
 
 
+@pytest.mark.slow
 def test_a_brief_current_limit_of_the_independent_emulator_is_found(limited):
-    """Issue 22's case (:func:`limited`): found as ``current_saturation``, i_max within 5 %."""
+    """Issue 22's case (:func:`limited`): found as ``current_saturation``, i_max within 5 %. A
+    benchmark case (a whole diagnosis), so in the slow tier; the rules it rests on (the starts, the
+    retry on a bound) are tested in the quick one."""
     d = pipeline.run(limited)
     assert d.selected[:1] == ["current_saturation"], (d.selected, [(c["effect"], c["held_out_gain"])
                                                                    for c in d.candidates])

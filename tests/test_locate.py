@@ -129,7 +129,8 @@ def test_a_record_without_effects_of_the_independent_emulator_locates_nothing(tm
 @pytest.mark.parametrize("tried", ["default", "without friction"])
 def test_a_friction_is_never_explained_by_another_effect(tmp_path, tried):
     """The whole diagnosis of a 2 % friction (the independent emulator, its defaults): it ends
-    ``coulomb_friction`` or ``unexplained: mechanics``, never ``explained`` by another effect."""
+    ``coulomb_friction``, or with the rest located at the mechanics, never ``explained`` by another
+    effect."""
     from maglev_cosim.diagnosis import pipeline
     from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS
     from maglev_cosim.records.emulator_ivp import synth_record as synth_ivp
@@ -139,5 +140,14 @@ def test_a_friction_is_never_explained_by_another_effect(tmp_path, tried):
     effects = None if tried == "default" else [e for e in DEFAULT_EFFECTS if e != "coulomb_friction"]
     d = pipeline.run(rec, effects=effects)
     verdict = d.to_json()["verdict"]
-    assert "coulomb_friction" in d.selected or verdict == "unexplained: mechanics", (d.selected, verdict)
-    assert not (verdict == "explained" and "coulomb_friction" not in d.selected)
+    assert not (verdict == "explained" and "coulomb_friction" not in d.selected), (d.selected, verdict)
+    if "coulomb_friction" in d.selected:
+        return
+    # without the friction: at most the emulator's own computation delay (its PID's output 0.3 of a
+    # sample late, a real delay of its records) is found, as a delay, and the rest is located at the
+    # mechanics: 'unexplained: mechanics', or 'explained in part' by that delay with the rest there
+    own = [e for e in d.selected if e == "delay" and abs(d.parameters["T_d"] - 3e-4) <= max(
+        3 * d.uncertainties.get("T_d", 0.0), 1e-4)]
+    assert own == d.selected, (d.selected, d.parameters.get("T_d"))
+    assert verdict in ("unexplained: mechanics", "explained in part"), verdict
+    assert d.verdict.noise_floor["location"] == "mechanics", d.verdict.noise_floor
