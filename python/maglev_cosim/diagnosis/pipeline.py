@@ -19,7 +19,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 
@@ -404,8 +404,7 @@ def by_innovations(prob: Problem, hold_mask: np.ndarray, chosen: Mapping[str, fl
     (:func:`~.residual.effective_samples`), against the chi-square quantile of one degree of freedom
     at ``1 - alpha``, as :func:`distinct`. On the project emulator's 2 ms force lag of seed 2900,
     whose held-out free run chose a delay (costs 0.6 % apart), it reads 32 for the force lag."""
-    with ThreadPoolExecutor(max_workers=2) as pool:       # the filter runs in C with the GIL released
-        t_c, t_r = pool.map(lambda v: innovation_terms(prob, v), (chosen, rival))
+    t_c, t_r = thread_map(lambda v: innovation_terms(prob, v), (chosen, rival))   # C, the GIL released
     return innovations_test(t_c, t_r, hold_mask, 1, alpha)
 
 
@@ -456,9 +455,8 @@ def by_innovations_alone(prob: Problem, hold_mask: np.ndarray, current: Mapping[
             and not entry.get("off") and not entry.get("inconsistent")]
     if not todo:
         return
-    base_terms = innovation_terms(prob, current)
-    with ThreadPoolExecutor(max_workers=2) as pool:       # the filter runs in C with the GIL released
-        terms = list(pool.map(lambda t: innovation_terms(prob, t[2]), todo))
+    # the model without them and each candidate, side by side (the filter runs in C, the GIL released)
+    base_terms, *terms = thread_map(lambda v: innovation_terms(prob, v), [current, *(t[2] for t in todo)])
     for (e, entry, _), t in zip(todo, terms):
         test = innovations_test(t, base_terms, hold_mask, len(CATALOGUE[e].params), ALPHA)
         entry["innovations"] = test
