@@ -41,7 +41,8 @@
     X(A_d, MAGLEV_PARAMETER, 0.0, -100.0, 100.0, "V", "Amplitude of sinusoidal pickup on the sensor voltage (0 = off)", "periodic_disturbance") \
     X(f_d, MAGLEV_PARAMETER, 50.0, 0.0, 1e5, "Hz", "Frequency of the sensor pickup", "periodic_disturbance") \
     X(phi_d, MAGLEV_PARAMETER, 0.0, -1e3, 1e3, "rad", "Phase of the sensor pickup at t = 0", "periodic_disturbance") \
-    X(F_c, MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "N", "Coulomb friction force on the moving ball, smoothed as F_c*tanh(v/v_c) with v_c = 0.1 mm/s (0 = off)", "coulomb_friction") \
+    X(F_c, MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "N", "Coulomb friction force on the moving ball, smoothed as F_c*tanh(v/v_c) (0 = off)", "coulomb_friction") \
+    X(v_c, MAGLEV_PARAMETER, 1e-4, 1e-6, 1.0, "m/s", "Speed over which the Coulomb friction is smoothed: F_c*tanh(v/v_c) (a guide's or cable's stick-slip blurred by the ball's wobble)", "coulomb_friction") \
     X(n_F, MAGLEV_PARAMETER, 2.0, 1.0, 4.0, "1", "Force-law exponent: F = k_c*i^2/(x_0 - x)^2 * ((x_0 - x_n)/(x_0 - x))^(n_F - 2) (2 = Eq. 8)", "force_exponent") \
     X(x_n, MAGLEV_PARAMETER, 3.2e-3, POS_M, "m", "Position where a force-law exponent other than 2 leaves the force unchanged (the paper's operating point), below x_0", "force_exponent") \
     X(u_dz, MAGLEV_PARAMETER, 0.0, 0.0, 100.0, "V", "Half-width of the amplifier's dead zone around 0 V input (0 = off)", "amplifier_dead_zone") \
@@ -85,7 +86,6 @@
 #define TRANSIENT_EPS 1e-6 /* [A] current transient below which RK4 may take full steps */
 #define IMPULSE_RATIO 64.0 /* with a force lag, a current transient with T_a <= substep/64 is an impulse */
 #define FF_CURRENT_EPS 1e-12 /* [A] current transient that no longer moves a force lag's input */
-#define V_COULOMB 1e-4 /* [m/s] smoothing speed of the Coulomb friction: F_c*tanh(v/V_COULOMB) */
 
 /* The ranges are physical plausibility bounds, far wider than any rig, that keep every product
  * of the equations finite: a value outside them is a unit error or a typing slip. */
@@ -359,6 +359,7 @@ typedef struct {
     double i0, ic;          /* current at the piece's start and its command */
     double kc_m, kfv_m, x0; /* k_c/m_k, k_FV/m_k, x_0: the hot loop's constants */
     double fc_m;            /* F_c/m_k [m/s2] */
+    double vc;              /* v_c [m/s] */
     int exponent;           /* n_F != 2 */
     int law_e;              /* the exponential force law is on (k_e > 0) */
     int voltage;            /* a voltage drive: the current is a state */
@@ -372,7 +373,7 @@ typedef struct {
 
 static Piece make_piece(MaglevPlant *m, double i0, double ic, double volts, long *work) {
     Piece pc = {m, i0, ic, P(m, k_c) / P(m, m_k), P(m, k_FV) / P(m, m_k), P(m, x_0), P(m, F_c) / P(m, m_k),
-                P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work, m,
+                P(m, v_c), P(m, n_F) != 2.0, P(m, k_e) > 0, voltage_drive(m), volts, work, m,
                 !voltage_drive(m) && P(m, T_a) > 0 && P(m, T_F) <= 0, P(m, beta_F), P(m, kappa_c)};
     return pc;
 }
@@ -396,14 +397,14 @@ HOT Mech deriv(const Piece *pc, double isq, Mech s, int contact) {
         d.F2 = (fs - s.F2) / P(m, T_F2);
         d.x = contact ? 0.0 : s.v;
         d.v = contact ? 0.0 : ((1.0 - pc->beta) * fast + pc->beta * s.F2) / P(m, m_k) - pc->kfv_m * s.v - P(m, g);
-        if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
+        if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / pc->vc);
         return d;
     }
     if (P(m, T_F) > 0) { /* d.F: the lag's input F_s/T_F (its linear part -F/T_F is the ETD's) */
         d.F = force_gain(m, s.x) * isq / P(m, T_F);
         d.x = contact ? 0.0 : s.v;
         d.v = contact ? 0.0 : s.F / P(m, m_k) - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
-        if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
+        if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / pc->vc);
         return d;
     }
     double gap = pc->x0 - s.x;
@@ -416,7 +417,7 @@ HOT Mech deriv(const Piece *pc, double isq, Mech s, int contact) {
     }
     if (pc->law_e) force += P(m, k_e) / P(m, m_k) * exp(-gap / P(m, z_e)) * isq;
     d.v = contact ? 0.0 : force - pc->kfv_m * s.v - P(m, g); /* Eq. 8 */
-    if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / V_COULOMB);
+    if (pc->fc_m > 0 && !contact) d.v -= pc->fc_m * tanh(s.v / pc->vc);
     return d;
 }
 
@@ -691,8 +692,8 @@ static double substep_max(const MaglevPlant *m, SetBy *by) {
         *by = BY_EDDY_LAG;
     }
     /* the smoothed friction's slope F_c/(m_k*v_c) is a fast rate near v = 0: keep RK4's h*rate <= 0.1 */
-    if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c) < h) {
-        h = 0.1 * P(m, m_k) * V_COULOMB / P(m, F_c);
+    if (P(m, F_c) > 0 && 0.1 * P(m, m_k) * P(m, v_c) / P(m, F_c) < h) {
+        h = 0.1 * P(m, m_k) * P(m, v_c) / P(m, F_c);
         *by = BY_FRICTION;
     }
     if (voltage_drive(m)) { /* RK4 on the coil equation: keep h below a fifth of its smallest time constant */
@@ -1032,7 +1033,7 @@ static void budget_message(const MaglevPlant *m, double h, const Plan *plan, cha
         break;
     case BY_FRICTION:
         snprintf(what, sizeof what, "the friction F_c = %g N sets their length to 0.1*m_k*v_c/F_c = %g s (m_k = %g kg, "
-                 "v_c = 0.1 mm/s)", P(m, F_c), hmax, P(m, m_k));
+                 "v_c = %g m/s)", P(m, F_c), hmax, P(m, m_k), P(m, v_c));
         break;
     case BY_VOLTAGE_DRIVE:
         snprintf(what, sizeof what, "the voltage drive (R_c = %g Ohm, L_0 = %g H, L_i = %g H) sets their length to "

@@ -49,7 +49,7 @@ def test_a_second_effect_that_only_patches_an_underfitted_first_one_is_rejected(
     assert abs(first["i_max"] / I_MAX - 1) < 0.03, first["i_max"]
     stood = {**first, "i_max": 1.08 * first["i_max"]}
     hold_before = cost_on(prob, stood, hold)
-    patch = {**first, "F_c": 1e-4}           # friction ~0: the gain is the limit's
+    patch = {**first, "F_c": 1e-4, "v_c": 1e-4}   # friction ~0: the gain is the limit's
     entry, vals = pipeline.judge(prob, hold, hold_before, {"effect": "coulomb_friction", "values": patch}, 2)
     assert entry["accepted"], entry                              # as it stood, the patch passes the test
     new, _, null = pipeline.against_refitted(prob, hold, hold_before, ["current_saturation"], entry, vals, 2)

@@ -100,7 +100,7 @@ class ReferencePlant:
             force = self._felt(F if p.T_F > 0 else fs, F2)
             if self.mode:
                 return np.array([0.0, 0.0, di, dF, dxs, dF2])
-            friction = p.F_c * math.tanh(v / 1e-4) if p.F_c > 0 else 0.0
+            friction = p.F_c * math.tanh(v / p.v_c) if p.F_c > 0 else 0.0
             return np.array([v, (force - p.k_FV * v - friction) / p.m_k - p.g, di, dF, dxs, dF2])
 
         return f

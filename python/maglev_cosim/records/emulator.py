@@ -21,7 +21,7 @@ converters of 10 to 16 bits (``bits``).
 
 Effects the catalogue also has, written here in the emulator's own way: ``force_exponent``
 (force law ``k_c'·i²/(x_0 − x)^n_F`` with ``k_c'`` keeping the 3.2 mm equilibrium),
-``coulomb_friction`` (``F_c·tanh(v/0.1 mm/s)``), ``amplifier_dead_zone`` (no current while the
+``coulomb_friction`` (``F_c·tanh(v/v_c)``, ``v_c`` = 0.1 mm/s unless set), ``amplifier_dead_zone`` (no current while the
 amplifier's input is within ``±u_dz`` volts), ``sensor_drift`` (the sensor voltage's offset
 creeping by ``r_y·t``) and ``force_gain_drift`` (the magnet warming: its force scaled by
 ``1 + kappa_c·t``, taken at the middle of each substep).
@@ -76,6 +76,7 @@ class RigConfig:
     phi_d: float = 0.0
     n_F: float = 2.0            # force_exponent
     F_c: float = 0.0            # coulomb_friction [N]
+    v_c: float = 1e-4           # its smoothing speed [m/s]
     u_dz: float = 0.0           # amplifier_dead_zone [V]
     T_y: float = 0.0            # sensor_lag [s]: the sensor sees the position through a first-order lag
     r_y: float = 0.0            # sensor_drift [V/s]: the sensor's offset creeps while its electronics warm up
@@ -175,12 +176,12 @@ def simulate_rig(w: np.ndarray, cfg: RigConfig, *, ts: float = 1e-3, kp: float =
     lag_i, lag_F = c.T_a > 0, c.T_F > 0
     Ta, TF, kfv, m = c.T_a, c.T_F, c.k_FV, c.m_k
     beta, TF2 = c.beta_F, c.T_F2
-    fc = c.F_c
+    fc, vc = c.F_c, c.v_c
 
     def accel(xx: float, vv: float, ff: float, fr: float) -> float:
         a = (ff - kfv * vv + fr) / m - c.g
         if fc > 0:
-            a -= fc * math.tanh(vv / 1e-4) / m
+            a -= fc * math.tanh(vv / vc) / m
         return a
 
     # random force: low-passed Gaussian, RMS sigma_F (tau_F_noise = 0: white, held over each sample),

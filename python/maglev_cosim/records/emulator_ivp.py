@@ -30,7 +30,7 @@ What it shares with the model is the paper's equations (``../shared/design/plant
   sensor nonlinearity ``k_x2`` (a parabola through Table 3's calibration points 0 and ``x_cal``),
   current limit ``i_max`` (any value > 0: the amplifier's command is clipped to it), sensor pickup
   ``A_d·sin(2π f_d t + phi_d)`` [V] on the sensor voltage, Coulomb friction ``F_c·tanh(v/v_c)`` with
-  ``v_c`` = 1 mm/s by default, and the viscous damping ``k_FV`` of Eq. 8 (a plant parameter).
+  ``v_c`` = 1 mm/s by default (``--effect coulomb_friction:F_c=...,v_c=...``), and the viscous damping ``k_FV`` of Eq. 8 (a plant parameter).
 
 :func:`simulate` runs the loop and returns its signals; :func:`synth_record` writes a record with the
 arguments of :func:`maglev_cosim.records.synth.synth_record` (``maglev-cosim synth --emulator ivp``).
@@ -60,7 +60,7 @@ PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "
 
 
 #: Settings of this emulator alone (``synth_record(settings=...)``, ``--setting NAME=VALUE``).
-SETTINGS = ("pid_offset", "f_y", "v_c", "method", "rtol")
+SETTINGS = ("pid_offset", "f_y", "method", "rtol")
 
 
 @dataclass(frozen=True)
@@ -422,7 +422,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     (:data:`DISTURBANCE_KEYS` and the PID gains, e.g. from :func:`maglev_cosim.records.synth.draw_disturbance`:
     ``sigma_y`` is the coloured sensor noise's RMS here). ``noise=False``: no sensor noise, random
     force or quantisation. ``settings``: this emulator's own (:data:`SETTINGS`: ``pid_offset``,
-    ``f_y``, ``v_c``, ``method``, ``rtol``). The record's metadata name the emulator, the seed and
+    ``f_y``, ``method``, ``rtol``; the friction's ``v_c`` is a parameter of its effect). The record's metadata name the emulator, the seed and
     the effects; the sidecar holds the whole configuration."""
     effects = {name: dict(pv) for name, pv in (effects or {}).items()}
     values, dist, (kp, ki, kd) = checked_settings(effects, params, disturbance, (kp, ki, kd), EFFECTS, PLANT_PARAMS)
