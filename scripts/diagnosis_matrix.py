@@ -66,7 +66,7 @@ FRICTION_SPEED = (1e-4, 2e-3)     #: [m/s]
 #: The done-when figures of issue 22 that the benchmark checks (docs/diagnosis.md, "The acceptance benchmark").
 TARGETS = {"the emulator's own computation delay found (as a delay or a lag)": "—", "false positives": "≤ 2 %", "power": "≥ 95 %", "spurious second effect": "≤ 2 %",
            "'explained' beyond 1.2× the true model's error": "0", "'explained' beyond 1.2× the no-effect twin's error": "–", "friction ≥ 2 % of the weight": "100 %",
-           "current limit found, i_max within 5 %": "100 %"}
+           "current limit found, i_max within 5 %": "100 % (active in 1–60 % of the samples)"}
 
 
 def _log_uniform(seed: int, salt: int, lo: float, hi: float) -> float:
@@ -331,9 +331,16 @@ def _checks(out: dict, n_null: int, fp: int, hits: int, n_catalogue: int) -> lis
     loose_twin = [r for r in power if r["verdict"] == "explained" and r["after_over_null_prediction_y"] > 1.2]
     friction = [r for r in power if r["effect"] == "coulomb_friction" and r["planted"]["F_c"] >= 0.02 * WEIGHT]
     fr_ok = [r for r in friction if "coulomb_friction" in r["selected"] or r["verdict"] == "unexplained: mechanics"]
-    limits = [r for r in power if r["effect"] == "current_saturation" and r["case"] != r["effect"]]
-    lim_ok = [r for r in limits if "current_saturation" in r["selected"] and r["estimates"].get("i_max")
-              and abs(r["estimates"]["i_max"] / r["planted"]["i_max"] - 1) <= 0.05]
+    # issue 22's criterion is over limits active in 1-60 % of the samples: a drawn limit whose record
+    # holds the current at it far longer (the ball fell, and the loop sits on the limit) is shown apart
+    drawn = [r for r in power if r["effect"] == "current_saturation" and r["case"] != r["effect"]]
+    limits = [r for r in drawn if LIMIT_SHARE[0] <= r["i_limited_share"] <= LIMIT_SHARE[1]]
+    beyond = [r for r in drawn if r not in limits]
+
+    def found(rs: list[dict]) -> list[dict]:
+        return [r for r in rs if "current_saturation" in r["selected"] and r["estimates"].get("i_max")
+                and abs(r["estimates"]["i_max"] / r["planted"]["i_max"] - 1) <= 0.05]
+    lim_ok = found(limits)
     own = [r for r in out["null"] if r.get("own_delay_s", 0) > 0]
     rows = [("false positives", n_null, _share(fp, n_null))]
     if own:
@@ -346,7 +353,10 @@ def _checks(out: dict, n_null: int, fp: int, hits: int, n_catalogue: int) -> lis
              ("'explained' beyond 1.2× the no-effect twin's error", len(power), str(len(loose_twin))),
              ("friction ≥ 2 % of the weight", len(friction), _share(len(fr_ok), len(friction))),
              ("current limit found, i_max within 5 %", len(limits), _share(len(lim_ok), len(limits)))]
-    return [{"criterion": c, "records": n, "measured": m, "target": TARGETS[c]} for c, n, m in rows]
+    if beyond:
+        rows.append((f"current limit active beyond {100 * LIMIT_SHARE[1]:.0f} % of the samples (outside the "
+                     "criterion), found", len(beyond), _share(len(found(beyond)), len(beyond))))
+    return [{"criterion": c, "records": n, "measured": m, "target": TARGETS.get(c, "–")} for c, n, m in rows]
 
 
 def family_section(res: dict, emulator: str) -> str:
