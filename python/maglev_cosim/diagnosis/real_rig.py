@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 from scipy.optimize import least_squares, minimize, minimize_scalar
+from threadpoolctl import threadpool_limits
 
 # Imported inside a function, on purpose: matplotlib (heavy, only the plots).
 from .._html import write_html
@@ -1430,6 +1431,17 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     catalogue's effects on the calibrated model (:func:`effect_search`); ``second_force_lag``: how the
     second force lag (:data:`SECOND_FORCE_LAG`) is fitted, None, "joint" or "after" (default
     :data:`SECOND_FORCE_LAG_FIT`)."""
+    # One BLAS thread: the stages already spread their replays over the cores (:func:`_map`), and
+    # OpenBLAS's own threads beside them only compete for the cores (on a busy 2-core machine a
+    # controller's least squares of reaction.predict took 100 ms with two BLAS threads, 3 ms with one).
+    with threadpool_limits(limits=1):
+        return _run(rig, records, out, validate=validate, per_record=per_record, progress=progress,
+                    json_name=json_name, controller=controller, effects=effects, second_force_lag=second_force_lag)
+
+
+def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Sequence[Measured], per_record: bool,
+         progress, json_name: str, controller, effects: bool, second_force_lag: str | None) -> dict:
+    """:func:`run`'s stages (with one BLAS thread)."""
     mode = SECOND_FORCE_LAG_FIT if second_force_lag == "default" else second_force_lag
     if mode not in (None, "joint", "after"):
         raise ValueError(f"second_force_lag: None, 'joint' or 'after', got {mode!r}")
