@@ -601,28 +601,102 @@ def _predict_all(rig: Rig, jobs: Sequence[tuple[RigRecord, float]], params: Plan
     return [got[(id(r), hs)] for r, hs in jobs]
 
 
-_in_worker = threading.local()
+class _Batch:
+    """One :func:`_map` call's items: claimed one at a time by the threads that run them."""
+
+    __slots__ = ("fn", "items", "results", "errors", "next", "left")
+
+    def __init__(self, fn, items: list) -> None:
+        self.fn, self.items = fn, items
+        self.results: list = [None] * len(items)
+        self.errors: list = [None] * len(items)
+        self.next = 0               # the first item not claimed yet
+        self.left = len(items)      # items not finished yet
+
+
+#: The batches of :func:`_map` with items not claimed yet, newest (the most deeply nested) last, the
+#: lock and condition that guard them, and the pool's threads (started when first needed).
+_pending: list[_Batch] = []
+_pool = threading.Condition()
+_pool_threads: list[threading.Thread] = []
+
+
+def _claim(prefer: _Batch | None) -> tuple[_Batch, int]:
+    """An item not claimed yet (with :data:`_pool` held, ``_pending`` not empty): of ``prefer`` while
+    it has one, else of the newest batch (a nested map's items before its caller's next ones)."""
+    b = prefer if prefer is not None and prefer.next < len(prefer.items) else _pending[-1]
+    k = b.next
+    b.next += 1
+    if b.next == len(b.items):
+        _pending.remove(b)
+    return b, k
+
+
+def _run_item(b: _Batch, k: int) -> None:
+    try:
+        b.results[k] = b.fn(b.items[k])
+    except BaseException as e:  # noqa: BLE001 - raised again by the batch's caller, in order
+        b.errors[k] = e
+    with _pool:
+        b.left -= 1
+        if b.left == 0:
+            _pool.notify_all()
+
+
+def _pool_worker() -> None:
+    while True:
+        with _pool:
+            while not _pending:
+                _pool.wait()
+            b, k = _claim(None)
+        _run_item(b, k)
+
+
+def _reset_pool_in_child() -> None:
+    """A forked child has none of the pool's threads (nor its parent's batches)."""
+    global _pool
+    _pending.clear()
+    _pool_threads.clear()
+    _pool = threading.Condition()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_reset_pool_in_child)
 
 
 def _map(fn, items: Sequence) -> list:
     """``[fn(x) for x in items]`` on the machine's cores (threads: the C filter releases the GIL),
-    in order; the same results as the loop, in less wall time where a core is free. Inside one of
-    its own workers it runs the loop (the outermost independent work is spread over the cores, not
-    every level again: more threads than cores only add switching)."""
+    in order; the same results as the loop, in less wall time where a core is free. One pool of
+    threads, one fewer than the cores, shares the work with the callers: a caller runs its own items
+    as long as any is left, and while the last ones run elsewhere it helps with those of the other
+    maps (the newest first). A map inside an item of another (a Jacobian's columns, each a replay of
+    several segments) thus spreads its items over the cores too, never more threads busy than cores:
+    the cores stay busy to the end of the outer map instead of waiting on its longest item."""
     items = list(items)
-    workers = min(len(items), os.cpu_count() or 1)
-    if workers < 2 or getattr(_in_worker, "busy", False):
+    cores = os.cpu_count() or 1
+    if cores < 2 or len(items) < 2:
         return [fn(x) for x in items]
-
-    def one(x):
-        _in_worker.busy = True
-        try:
-            return fn(x)
-        finally:
-            _in_worker.busy = False
-
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(one, items))
+    mine = _Batch(fn, items)
+    with _pool:
+        while len(_pool_threads) < cores - 1:
+            t = threading.Thread(target=_pool_worker, name=f"real_rig-map-{len(_pool_threads)}", daemon=True)
+            t.start()
+            _pool_threads.append(t)
+        _pending.append(mine)
+        _pool.notify_all()
+    while True:
+        with _pool:
+            if mine.next >= len(mine.items):
+                while mine.left > 0 and not _pending:
+                    _pool.wait()
+                if mine.left == 0:
+                    break
+            b, k = _claim(mine)
+        _run_item(b, k)
+    for e in mine.errors:
+        if e is not None:
+            raise e
+    return mine.results
 
 
 def _threaded_jacobian(fun, lo: np.ndarray, hi: np.ndarray, rel_step: float):
