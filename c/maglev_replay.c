@@ -63,6 +63,21 @@ int maglev_replay_point(const double *params, double x, double i, MaglevPoint *o
     return 0;
 }
 
+int maglev_replay_forces(const double *params, const double *x, const double *i, size_t n, double *F, char *msg,
+                         size_t len) {
+    MaglevPlant m;
+    if (maglev_replay_check_params(params, msg, len)) return -1;
+    load(&m, params, msg, len);
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(x[k])) {
+            snprintf(msg, len, "position x = %g m is not finite", x[k]);
+            return -1;
+        }
+        F[k] = maglev_force(&m, isnan(i[k]) ? maglev_equilibrium_current(&m, x[k]) : i[k], x[k], NULL, NULL);
+    }
+    return 0;
+}
+
 int maglev_replay_readings(const double *params, const double *x, size_t n, double t, double *y, char *msg,
                            size_t len) {
     MaglevPlant m;

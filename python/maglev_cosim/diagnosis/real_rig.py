@@ -42,7 +42,7 @@ from ..loop.fmu import ensure_fmu
 from ..plant import fast
 from ..plant.calibrated_fmu import calibrated_fmu
 from ..plant.fast import param_table
-from ..plant.formulas import point
+from ..plant.formulas import forces, point
 from ..plant.params import PlantParams
 from ..records.measured import Measured, Segment, levitation_segments
 from ..records.record import RecordError
@@ -1412,8 +1412,7 @@ def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> d
     if lev.sum() < 10:
         return None
     step = max(1, int(lev.sum() // 2000))
-    ratio = np.array([point(p, float(xk), float(ik)).F for xk, ik in
-                      zip(x[lev][::step], np.clip(m.current[lev][::step], 0, None))]) / (p.m_k * p.g)
+    ratio = forces(p, x[lev][::step], np.clip(m.current[lev][::step], 0, None)) / (p.m_k * p.g)
     q10, q50, q90 = np.percentile(ratio, [10, 50, 90])
     out = {"p10": float(q10), "median": float(q50), "p90": float(q90), "samples": int(lev.sum()),
            "consistent": bool(FORCE_BALANCE[0] <= q50 <= FORCE_BALANCE[1]),
@@ -1909,7 +1908,7 @@ def own_force_gain(rig: Rig, r: RigRecord, params: PlantParams) -> float:
     x = np.asarray(rig.to_x(r.position), float)
     i = np.clip(np.asarray(r.current, float), 0.0, None)
     step = max(1, len(x) // 2000)
-    ratio = np.median([point(params, float(a), float(b)).F for a, b in zip(x[::step], i[::step])]) / (params.m_k * params.g)
+    ratio = np.median(forces(params, x[::step], i[::step])) / (params.m_k * params.g)
     return float(1.0 / ratio) if ratio > 0 else float("nan")
 
 
