@@ -425,8 +425,7 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
             p = make(z)
             p.validate()
             parts = []
-            for r in use:
-                ip, im = every_third(p, r)
+            for r, (ip, im) in zip(use, _map(lambda r: every_third(p, r), use)):
                 parts.append((ip - im) / spread[id(r)] / np.sqrt(len(ip) * len(use)))
             return np.nan_to_num(np.concatenate(parts), nan=10.0, posinf=10.0, neginf=-10.0)
         except ValueError:
@@ -443,7 +442,7 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
     p = make(sol.x)
     return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
                "sigma": _coil_sigma(sol, names, base, additive, absolute),
-               "fit": {r.label: nrmse_fit(*reversed(currents(p, r))) for r in use},
+               "fit": {r.label: nrmse_fit(*reversed(c)) for r, c in zip(use, _map(lambda r: currents(p, r), use))},
                "on_bounds": [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]}
 
 
@@ -1518,14 +1517,21 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     # One BLAS thread: the stages already spread their replays over the cores (:func:`_map`), and
     # OpenBLAS's own threads beside them only compete for the cores (on a busy 2-core machine a
     # controller's least squares of reaction.predict took 100 ms with two BLAS threads, 3 ms with one).
-    with threadpool_limits(limits=1):
-        return _run(rig, records, out, validate=validate, per_record=per_record, progress=progress,
-                    json_name=json_name, controller=controller, effects=effects, second_force_lag=second_force_lag)
+    # The thread beside the stages (the black box, the figures before calibration): what it has not
+    # started when a stage fails is dropped.
+    with threadpool_limits(limits=1), ThreadPoolExecutor(max_workers=1) as background:
+        try:
+            return _run(rig, records, out, validate=validate, per_record=per_record, progress=progress,
+                        json_name=json_name, controller=controller, effects=effects,
+                        second_force_lag=second_force_lag, background=background)
+        finally:
+            background.shutdown(wait=False, cancel_futures=True)
 
 
 def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Sequence[Measured], per_record: bool,
-         progress, json_name: str, controller, effects: bool, second_force_lag: str | None) -> dict:
-    """:func:`run`'s stages (with one BLAS thread)."""
+         progress, json_name: str, controller, effects: bool, second_force_lag: str | None,
+         background: ThreadPoolExecutor) -> dict:
+    """:func:`run`'s stages (with one BLAS thread; ``background``: a thread for the work beside them)."""
     mode = SECOND_FORCE_LAG_FIT if second_force_lag == "default" else second_force_lag
     if mode not in (None, "joint", "after"):
         raise ValueError(f"second_force_lag: None, 'joint' or 'after', got {mode!r}")
@@ -1552,9 +1558,14 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
 
     # the black box needs the records alone: it is fitted beside the calibration (numpy's products
     # release the GIL, and a single segment's fit leaves a core free)
-    background = ThreadPoolExecutor(max_workers=1)
     black_box_job = background.submit(fit_black_box) if fit_on else None
     background.submit(_load_matplotlib)   # the plots' library, loaded while the replays run
+    # every segment's figures before calibration (the rig file's values) need nothing the stages
+    # compute: queued behind the black box on the same thread, they fill a core the stages leave idle
+    # (a sequential search, the Python between the replays); those not started when the figures'
+    # stage comes are taken back into it (see there)
+    every_seg = segs + [r for _, rs in held for r in rs]
+    before_jobs = [background.submit(figures, rig, r, rig.params) for r in every_seg]
     if fit_on:
         # two stages, each on the signal its parameters act on: the coil on the current computed
         # from the actuator signal, then the force law, the mechanics' terms and the filter's
@@ -1612,7 +1623,6 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         result["black_box"] = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
                                                     "features": len(p.coef)}
                                   for hs, p in black_box.items() if not isinstance(hs, tuple)}
-    background.shutdown()
 
     def calibration_segment(r: RigRecord) -> dict:
         say(f"figures of {r.label}")
@@ -1651,15 +1661,17 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
 
     # every segment's figures (before and after calibration), own coil and own force gain, and the
     # replays of the plots, are independent of each other: they run side by side on the machine's
-    # cores (:func:`_map`), in one list so that both keep busy
+    # cores (:func:`_map`), in one list so that both keep busy; the figures before calibration the
+    # background thread has not started yet join the list (the others it finishes meanwhile)
     held_items = [(m, r, fb) for m, rs in held for fb in [force_balance(rig, m, params)] for r in rs]
-    every_seg = segs + [r for _, r, _ in held_items]
-    work = ([("cal", r) for r in segs] + [("val", it) for it in held_items] + [("before", r) for r in every_seg]
-            + [("plot", r) for r in segs[:1]])
+    taken = [f.cancel() for f in before_jobs]
+    work = ([("cal", r) for r in segs] + [("val", it) for it in held_items]
+            + [("before", r) for r, t in zip(every_seg, taken) if t] + [("plot", r) for r in segs[:1]])
     done = _map(job, work)
     n_seg = len(every_seg)
-    for d, b in zip(done[:n_seg], done[n_seg: 2 * n_seg]):
-        d["before"] = b
+    again = iter(done[n_seg:])
+    for d, f, t in zip(done[:n_seg], before_jobs, taken):
+        d["before"] = next(again) if t else f.result()
     cal_segs, result["validation"] = done[: len(segs)], done[len(segs): n_seg]
     figs_after = []
     k = 0
