@@ -63,6 +63,21 @@ int maglev_replay_point(const double *params, double x, double i, MaglevPoint *o
     return 0;
 }
 
+int maglev_replay_forces(const double *params, const double *x, const double *i, size_t n, double *F, char *msg,
+                         size_t len) {
+    MaglevPlant m;
+    if (maglev_replay_check_params(params, msg, len)) return -1;
+    load(&m, params, msg, len);
+    for (size_t k = 0; k < n; k++) {
+        if (!isfinite(x[k])) {
+            snprintf(msg, len, "position x = %g m is not finite", x[k]);
+            return -1;
+        }
+        F[k] = maglev_force(&m, isnan(i[k]) ? maglev_equilibrium_current(&m, x[k]) : i[k], x[k], NULL, NULL);
+    }
+    return 0;
+}
+
 int maglev_replay_readings(const double *params, const double *x, size_t n, double t, double *y, char *msg,
                            size_t len) {
     MaglevPlant m;
@@ -280,21 +295,33 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
                 force lag's slow part, eddy_lag) */
 #define JAC_EVERY 10
 
-/* P = M P M' */
-static void sandwich(double M[NS][NS], double P[NS][NS]) { /* M is only read */
-    double MP[NS][NS];
+/* P = M P M' over the active states idx[0..na) (ascending) alone: the other rows and columns of P are
+ * zero (the filter keeps them so), so the terms skipped are exact zeros, and each entry's products are
+ * summed in the order of the full product: the active block is the same as the full product's, to the
+ * bit. The inactive rows and columns are left as they are. The products run along rows (M' as Mt), so
+ * that the entries of a row are summed side by side. */
+static void sandwich(double M[NS][NS], double P[NS][NS], const int *idx, int na) { /* M is only read */
+    double MP[NS][NS] = {{0}}, Mt[NS][NS];
     for (int i = 0; i < NS; i++)
-        for (int j = 0; j < NS; j++) {
-            double acc = 0;
-            for (int l = 0; l < NS; l++) acc += M[i][l] * P[l][j];
-            MP[i][j] = acc;
+        for (int j = 0; j < NS; j++) Mt[j][i] = M[i][j];
+    for (int a = 0; a < na; a++) {
+        const int i = idx[a];
+        for (int b = 0; b < na; b++) {
+            const int l = idx[b];
+            const double mil = M[i][l];
+            for (int j = 0; j < NS; j++) MP[i][j] += mil * P[l][j];
         }
-    for (int i = 0; i < NS; i++)
-        for (int j = 0; j < NS; j++) {
-            double acc = 0;
-            for (int l = 0; l < NS; l++) acc += MP[i][l] * M[j][l];
-            P[i][j] = acc;
+    }
+    for (int a = 0; a < na; a++) {
+        const int i = idx[a];
+        double row[NS] = {0};
+        for (int b = 0; b < na; b++) {
+            const int l = idx[b];
+            const double v = MP[i][l];
+            for (int j = 0; j < NS; j++) row[j] += v * Mt[l][j];
         }
+        for (int b = 0; b < na; b++) P[i][idx[b]] = row[idx[b]];
+    }
 }
 
 static void get_state(const MaglevPlant *m, double d, double c, double s[NS]) {
@@ -439,9 +466,10 @@ int maglev_replay_closed_loop(const double *params, const MaglevController *c, c
 
 /* The Kalman update with one scalar measurement whose row of H has the entry h at state j and, when
  * h2 != 0, the entry h2 at state j2 (the coloured sensor noise): gain, state (put back into the
- * plant, d and c beside it), and the covariance in Joseph form, P = (I - K H) P (I - K H)' + K r2 K'. */
-static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS], int j, double h, int j2, double h2,
-                          double e, double r2) {
+ * plant, d and c beside it), and the covariance in Joseph form, P = (I - K H) P (I - K H)' + K r2 K', over the
+ * active states idx[0..na) (an inactive state's gain is zero, as its rows and columns of P are). */
+static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS], const int *idx, int na, int j,
+                          double h, int j2, double h2, double e, double r2) {
     double S = h * h * P[j][j] + 2.0 * h * h2 * P[j][j2] + h2 * h2 * P[j2][j2] + r2, K[NS], s[NS];
     for (int i = 0; i < NS; i++) K[i] = (P[i][j] * h + P[i][j2] * h2) / S;
     get_state(m, *d, *c, s);
@@ -450,11 +478,14 @@ static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS]
     *d = s[4];
     *c = s[6];
     double IKH[NS][NS];
-    for (int i = 0; i < NS; i++)
-        for (int l = 0; l < NS; l++) IKH[i][l] = (i == l) - (l == j ? K[i] * h : 0.0) - (l == j2 ? K[i] * h2 : 0.0);
-    sandwich(IKH, P);
-    for (int i = 0; i < NS; i++)
-        for (int l = 0; l < NS; l++) P[i][l] += K[i] * r2 * K[l];
+    for (int a = 0; a < na; a++)
+        for (int b = 0; b < na; b++) {
+            int i = idx[a], l = idx[b];
+            IKH[i][l] = (i == l) - (l == j ? K[i] * h : 0.0) - (l == j2 ? K[i] * h2 : 0.0);
+        }
+    sandwich(IKH, P, idx, na);
+    for (int a = 0; a < na; a++)
+        for (int b = 0; b < na; b++) P[idx[a]][idx[b]] += K[idx[a]] * r2 * K[idx[b]];
 }
 
 static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
@@ -541,6 +572,9 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
     const double rc2 = coloured ? f->r_coloured * f->r_coloured : 0.0;
     const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1, sensor_lag, coloured,
                             maglev_param(&m, VR_beta_F) > 0};
+    int idx[NS], na = 0; /* the active states: the covariance's products run over them alone */
+    for (int j = 0; j < NS; j++)
+        if (active[j]) idx[na++] = j;
     const double delta[NS] = {1e-7, 1e-5, 1e-6, 1e-6 * mg, 1e-6 * mg, 1e-7, 0, 1e-6 * mg};
     /* process noise besides d's and c's own: tiny, to keep the lags' covariance well conditioned */
     const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0, 1e-16, 0, 1e-12 * mg * mg};
@@ -573,11 +607,12 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             double hc = coloured ? 1.0 : 0.0, e = y[k] - yhat - c;
             if (innov) innov[k] = e;
             if (innov_var) innov_var[k] = H * H * P[ys][ys] + 2.0 * H * hc * P[ys][6] + hc * hc * P[6][6] + r2;
-            scalar_update(&m, &d, &c, P, ys, H, 6, hc, e, r2);
+            scalar_update(&m, &d, &c, P, idx, na, ys, H, 6, hc, e, r2);
         }
         /* measurement update with the measured current (a state of its own only with a lag or a
          * voltage drive; otherwise it is a function of the input and carries nothing new) */
-        if (i_meas && active[2]) scalar_update(&m, &d, &c, P, 2, 1.0, 6, 0.0, i_meas[k] - m.i, r_current * r_current);
+        if (i_meas && active[2])
+            scalar_update(&m, &d, &c, P, idx, na, 2, 1.0, 6, 0.0, i_meas[k] - m.i, r_current * r_current);
         /* the random force after both updates: its trajectory is how a drift shows (a force the
          * mechanics lacks, or a gain that changes during the run) */
         if (d_est) d_est[k] = d;
@@ -680,7 +715,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
         d = a * d;
         c = b * c;
         if (rc) break;
-        sandwich(A, P);
+        sandwich(A, P, idx, na);
         for (int i = 0; i < NS; i++)
             for (int j = 0; j < NS; j++)
                 if (!active[i] || !active[j]) P[i][j] = 0.0;

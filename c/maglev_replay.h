@@ -214,6 +214,12 @@ typedef struct {
 
 int maglev_replay_point(const double *params, double x, double i, MaglevPoint *out, char *msg, size_t msglen);
 
+/* The static force F [N] of n positions x [m] with currents i [A] (MaglevPoint's F, one call for a
+ * record; a current that is NaN: the equilibrium current at x, as maglev_replay_point takes it).
+ * Returns 0, or -1 with a message (a position that is not finite). */
+int maglev_replay_forces(const double *params, const double *x, const double *i, size_t n, double *F, char *msg,
+                         size_t msglen);
+
 /* The noise-free readings y [MU] at time t [s] of n positions x [m] (MaglevPoint's y, one call for a
  * record). Returns 0, or -1 with a message (a position that is not finite). */
 int maglev_replay_readings(const double *params, const double *x, size_t n, double t, double *y, char *msg,

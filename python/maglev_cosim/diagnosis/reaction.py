@@ -138,9 +138,13 @@ class LinearController:
         after ``k``."""
         y, u = signals["y"], signals["u"]
         R = np.empty((len(starts), h))
+        # the part of the ARX value that does not read y, once at every sample a start's window reaches
+        # (each sample's value is the same sum, in the same order, as computed per j)
+        t_all = np.arange(int(starts.min()) + 1, int(starts.max()) + h + 1) if len(starts) else np.arange(0)
+        not_y = self._value(signals, t_all, skip="y")
         for j in range(1, h + 1):
             t = starts + j
-            v = self._value(signals, t, skip="y")
+            v = not_y[t - (t_all[0] if len(t_all) else 0)]
             for m, b in enumerate(self.b):
                 v += b * (traj[starts, j - m] if j - m > 0 else y[t - m])
             R[:, j - 1] = u[t] - v

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from scipy import signal
 from scipy.optimize import least_squares, minimize, minimize_scalar
+from threadpoolctl import threadpool_limits
 
 # Imported inside a function, on purpose: matplotlib (heavy, only the plots).
 from .._html import write_html
@@ -41,7 +42,7 @@ from ..loop.fmu import ensure_fmu
 from ..plant import fast
 from ..plant.calibrated_fmu import calibrated_fmu
 from ..plant.fast import param_table
-from ..plant.formulas import point
+from ..plant.formulas import forces, point
 from ..plant.params import PlantParams
 from ..records.measured import Measured, Segment, levitation_segments
 from ..records.record import RecordError
@@ -174,7 +175,18 @@ _replays_lock = threading.Lock()
 
 def _fingerprint(r: RigRecord) -> bytes:
     """A digest of the segment's signals (not its ``id``: a segment freed and another made at the same
-    address must not find the first one's replays)."""
+    address must not find the first one's replays), kept on the segment beside the arrays it was taken
+    of (taken again when one of them is replaced: every replay of a fit asks for it)."""
+    arrays = (r.y, r.u, r.current, float(r.ts))
+    memo = r.__dict__.get("_fingerprint")
+    if memo is not None and all(a is b for a, b in zip(memo[0][:3], arrays[:3])) and memo[0][3] == arrays[3]:
+        return memo[1]
+    digest = _digest(r)
+    r.__dict__["_fingerprint"] = (arrays, digest)
+    return digest
+
+
+def _digest(r: RigRecord) -> bytes:
     h = hashlib.blake2b(digest_size=16)
     for a in (r.y, r.u, r.current):
         h.update(b"-" if a is None else np.ascontiguousarray(a, dtype=float).tobytes())
@@ -413,8 +425,7 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
             p = make(z)
             p.validate()
             parts = []
-            for r in use:
-                ip, im = every_third(p, r)
+            for r, (ip, im) in zip(use, _map(lambda r: every_third(p, r), use)):
                 parts.append((ip - im) / spread[id(r)] / np.sqrt(len(ip) * len(use)))
             return np.nan_to_num(np.concatenate(parts), nan=10.0, posinf=10.0, neginf=-10.0)
         except ValueError:
@@ -431,7 +442,7 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
     p = make(sol.x)
     return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
                "sigma": _coil_sigma(sol, names, base, additive, absolute),
-               "fit": {r.label: nrmse_fit(*reversed(currents(p, r))) for r in use},
+               "fit": {r.label: nrmse_fit(*reversed(c)) for r, c in zip(use, _map(lambda r: currents(p, r), use))},
                "on_bounds": [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]}
 
 
@@ -600,28 +611,102 @@ def _predict_all(rig: Rig, jobs: Sequence[tuple[RigRecord, float]], params: Plan
     return [got[(id(r), hs)] for r, hs in jobs]
 
 
-_in_worker = threading.local()
+class _Batch:
+    """One :func:`_map` call's items: claimed one at a time by the threads that run them."""
+
+    __slots__ = ("fn", "items", "results", "errors", "next", "left")
+
+    def __init__(self, fn, items: list) -> None:
+        self.fn, self.items = fn, items
+        self.results: list = [None] * len(items)
+        self.errors: list = [None] * len(items)
+        self.next = 0               # the first item not claimed yet
+        self.left = len(items)      # items not finished yet
+
+
+#: The batches of :func:`_map` with items not claimed yet, newest (the most deeply nested) last, the
+#: lock and condition that guard them, and the pool's threads (started when first needed).
+_pending: list[_Batch] = []
+_pool = threading.Condition()
+_pool_threads: list[threading.Thread] = []
+
+
+def _claim(prefer: _Batch | None) -> tuple[_Batch, int]:
+    """An item not claimed yet (with :data:`_pool` held, ``_pending`` not empty): of ``prefer`` while
+    it has one, else of the newest batch (a nested map's items before its caller's next ones)."""
+    b = prefer if prefer is not None and prefer.next < len(prefer.items) else _pending[-1]
+    k = b.next
+    b.next += 1
+    if b.next == len(b.items):
+        _pending.remove(b)
+    return b, k
+
+
+def _run_item(b: _Batch, k: int) -> None:
+    try:
+        b.results[k] = b.fn(b.items[k])
+    except BaseException as e:  # noqa: BLE001 - raised again by the batch's caller, in order
+        b.errors[k] = e
+    with _pool:
+        b.left -= 1
+        if b.left == 0:
+            _pool.notify_all()
+
+
+def _pool_worker() -> None:
+    while True:
+        with _pool:
+            while not _pending:
+                _pool.wait()
+            b, k = _claim(None)
+        _run_item(b, k)
+
+
+def _reset_pool_in_child() -> None:
+    """A forked child has none of the pool's threads (nor its parent's batches)."""
+    global _pool
+    _pending.clear()
+    _pool_threads.clear()
+    _pool = threading.Condition()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_reset_pool_in_child)
 
 
 def _map(fn, items: Sequence) -> list:
     """``[fn(x) for x in items]`` on the machine's cores (threads: the C filter releases the GIL),
-    in order; the same results as the loop, in less wall time where a core is free. Inside one of
-    its own workers it runs the loop (the outermost independent work is spread over the cores, not
-    every level again: more threads than cores only add switching)."""
+    in order; the same results as the loop, in less wall time where a core is free. One pool of
+    threads, one fewer than the cores, shares the work with the callers: a caller runs its own items
+    as long as any is left, and while the last ones run elsewhere it helps with those of the other
+    maps (the newest first). A map inside an item of another (a Jacobian's columns, each a replay of
+    several segments) thus spreads its items over the cores too, never more threads busy than cores:
+    the cores stay busy to the end of the outer map instead of waiting on its longest item."""
     items = list(items)
-    workers = min(len(items), os.cpu_count() or 1)
-    if workers < 2 or getattr(_in_worker, "busy", False):
+    cores = os.cpu_count() or 1
+    if cores < 2 or len(items) < 2:
         return [fn(x) for x in items]
-
-    def one(x):
-        _in_worker.busy = True
-        try:
-            return fn(x)
-        finally:
-            _in_worker.busy = False
-
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        return list(pool.map(one, items))
+    mine = _Batch(fn, items)
+    with _pool:
+        while len(_pool_threads) < cores - 1:
+            t = threading.Thread(target=_pool_worker, name=f"real_rig-map-{len(_pool_threads)}", daemon=True)
+            t.start()
+            _pool_threads.append(t)
+        _pending.append(mine)
+        _pool.notify_all()
+    while True:
+        with _pool:
+            if mine.next >= len(mine.items):
+                while mine.left > 0 and not _pending:
+                    _pool.wait()
+                if mine.left == 0:
+                    break
+            b, k = _claim(mine)
+        _run_item(b, k)
+    for e in mine.errors:
+        if e is not None:
+            raise e
+    return mine.results
 
 
 def _threaded_jacobian(fun, lo: np.ndarray, hi: np.ndarray, rel_step: float):
@@ -1337,8 +1422,7 @@ def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> d
     if lev.sum() < 10:
         return None
     step = max(1, int(lev.sum() // 2000))
-    ratio = np.array([point(p, float(xk), float(ik)).F for xk, ik in
-                      zip(x[lev][::step], np.clip(m.current[lev][::step], 0, None))]) / (p.m_k * p.g)
+    ratio = forces(p, x[lev][::step], np.clip(m.current[lev][::step], 0, None)) / (p.m_k * p.g)
     q10, q50, q90 = np.percentile(ratio, [10, 50, 90])
     out = {"p10": float(q10), "median": float(q50), "p90": float(q90), "samples": int(lev.sum()),
            "consistent": bool(FORCE_BALANCE[0] <= q50 <= FORCE_BALANCE[1]),
@@ -1430,6 +1514,24 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
     catalogue's effects on the calibrated model (:func:`effect_search`); ``second_force_lag``: how the
     second force lag (:data:`SECOND_FORCE_LAG`) is fitted, None, "joint" or "after" (default
     :data:`SECOND_FORCE_LAG_FIT`)."""
+    # One BLAS thread: the stages already spread their replays over the cores (:func:`_map`), and
+    # OpenBLAS's own threads beside them only compete for the cores (on a busy 2-core machine a
+    # controller's least squares of reaction.predict took 100 ms with two BLAS threads, 3 ms with one).
+    # The thread beside the stages (the black box, the figures before calibration): what it has not
+    # started when a stage fails is dropped.
+    with threadpool_limits(limits=1), ThreadPoolExecutor(max_workers=1) as background:
+        try:
+            return _run(rig, records, out, validate=validate, per_record=per_record, progress=progress,
+                        json_name=json_name, controller=controller, effects=effects,
+                        second_force_lag=second_force_lag, background=background)
+        finally:
+            background.shutdown(wait=False, cancel_futures=True)
+
+
+def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Sequence[Measured], per_record: bool,
+         progress, json_name: str, controller, effects: bool, second_force_lag: str | None,
+         background: ThreadPoolExecutor) -> dict:
+    """:func:`run`'s stages (with one BLAS thread; ``background``: a thread for the work beside them)."""
     mode = SECOND_FORCE_LAG_FIT if second_force_lag == "default" else second_force_lag
     if mode not in (None, "joint", "after"):
         raise ValueError(f"second_force_lag: None, 'joint' or 'after', got {mode!r}")
@@ -1456,9 +1558,14 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
 
     # the black box needs the records alone: it is fitted beside the calibration (numpy's products
     # release the GIL, and a single segment's fit leaves a core free)
-    background = ThreadPoolExecutor(max_workers=1)
     black_box_job = background.submit(fit_black_box) if fit_on else None
     background.submit(_load_matplotlib)   # the plots' library, loaded while the replays run
+    # every segment's figures before calibration (the rig file's values) need nothing the stages
+    # compute: queued behind the black box on the same thread, they fill a core the stages leave idle
+    # (a sequential search, the Python between the replays); those not started when the figures'
+    # stage comes are taken back into it (see there)
+    every_seg = segs + [r for _, rs in held for r in rs]
+    before_jobs = [background.submit(figures, rig, r, rig.params) for r in every_seg]
     if fit_on:
         # two stages, each on the signal its parameters act on: the coil on the current computed
         # from the actuator signal, then the force law, the mechanics' terms and the filter's
@@ -1516,7 +1623,6 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
         result["black_box"] = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
                                                     "features": len(p.coef)}
                                   for hs, p in black_box.items() if not isinstance(hs, tuple)}
-    background.shutdown()
 
     def calibration_segment(r: RigRecord) -> dict:
         say(f"figures of {r.label}")
@@ -1555,15 +1661,17 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
 
     # every segment's figures (before and after calibration), own coil and own force gain, and the
     # replays of the plots, are independent of each other: they run side by side on the machine's
-    # cores (:func:`_map`), in one list so that both keep busy
+    # cores (:func:`_map`), in one list so that both keep busy; the figures before calibration the
+    # background thread has not started yet join the list (the others it finishes meanwhile)
     held_items = [(m, r, fb) for m, rs in held for fb in [force_balance(rig, m, params)] for r in rs]
-    every_seg = segs + [r for _, r, _ in held_items]
-    work = ([("cal", r) for r in segs] + [("val", it) for it in held_items] + [("before", r) for r in every_seg]
-            + [("plot", r) for r in segs[:1]])
+    taken = [f.cancel() for f in before_jobs]
+    work = ([("cal", r) for r in segs] + [("val", it) for it in held_items]
+            + [("before", r) for r, t in zip(every_seg, taken) if t] + [("plot", r) for r in segs[:1]])
     done = _map(job, work)
     n_seg = len(every_seg)
-    for d, b in zip(done[:n_seg], done[n_seg: 2 * n_seg]):
-        d["before"] = b
+    again = iter(done[n_seg:])
+    for d, f, t in zip(done[:n_seg], before_jobs, taken):
+        d["before"] = next(again) if t else f.result()
     cal_segs, result["validation"] = done[: len(segs)], done[len(segs): n_seg]
     figs_after = []
     k = 0
@@ -1823,7 +1931,7 @@ def own_force_gain(rig: Rig, r: RigRecord, params: PlantParams) -> float:
     x = np.asarray(rig.to_x(r.position), float)
     i = np.clip(np.asarray(r.current, float), 0.0, None)
     step = max(1, len(x) // 2000)
-    ratio = np.median([point(params, float(a), float(b)).F for a, b in zip(x[::step], i[::step])]) / (params.m_k * params.g)
+    ratio = np.median(forces(params, x[::step], i[::step])) / (params.m_k * params.g)
     return float(1.0 / ratio) if ratio > 0 else float("nan")
 
 

@@ -57,6 +57,18 @@ def point(params: PlantParams | Mapping[str, float] | np.ndarray | None, x: floa
     return Point(*(float(getattr(out, f)) for f in Point.__dataclass_fields__))
 
 
+def forces(params: PlantParams | Mapping[str, float] | np.ndarray | None, x, i) -> np.ndarray:
+    """The static forces [N] at positions ``x`` [m] with currents ``i`` [A]: ``point(params, x, i).F`` for
+    each (a current that is NaN: the equilibrium current), in one C call."""
+    m = fast._lib()
+    x, i = np.broadcast_arrays(np.atleast_1d(np.asarray(x, dtype=float)), np.atleast_1d(np.asarray(i, dtype=float)))
+    x, i = np.ascontiguousarray(x), np.ascontiguousarray(i)
+    out = np.empty_like(x)
+    ptr = lambda v: m.ffi.cast("double *", m.ffi.from_buffer(v))  # noqa: E731
+    _call("maglev_replay_forces", params, ptr(x), ptr(i), len(x), ptr(out))
+    return out
+
+
 def readings(params: PlantParams | Mapping[str, float] | np.ndarray | None, x, t: float = 0.0) -> np.ndarray:
     """The noise-free readings [MU] at positions ``x`` [m] and time ``t`` [s] (Eq. 12, 13): ``point(params,
     x).y`` for each, in one C call."""
@@ -89,4 +101,4 @@ def equilibrium_input(p: Mapping[str, float]) -> float:
     return point(p, p["x_start"]).u
 
 
-__all__ = ["Point", "equilibrium_input", "point", "position", "positions"]
+__all__ = ["Point", "equilibrium_input", "forces", "point", "position", "positions"]
