@@ -73,3 +73,23 @@ def test_a_friction_and_its_smoothing_speed_are_recovered(tmp_path, emulator, se
     assert d.selected == ["coulomb_friction"], (d.selected, d.verdict.verdict)
     assert abs(d.parameters["F_c"] / F_c - 1) < dm.CATALOGUE["coulomb_friction"].tolerance["F_c"], d.parameters["F_c"]
     assert 1 / 1.5 < d.parameters["v_c"] / v_c < 1.5, d.parameters["v_c"]
+
+
+def test_the_independent_emulators_force_lag_is_not_read_as_a_delay(tmp_path):
+    """Seed 3100's 2 ms force lag on the independent emulator (sensor noise low-passed at 100 Hz):
+    the twins are told apart by innovations with a coloured sensor noise where the record shows one
+    (pipeline.by_innovations); with white sensor noise the delay had been chosen (LR -34.7)."""
+    planted = {"force_lag": {"T_F": 0.002}}
+    path = emulator_ivp.synth_record(tmp_path / "p.csv", seed=3100, disturbance=draw_disturbance(3100), effects=planted)
+    d = pipeline.run(read_record(path, plausibility="warn"))
+    assert "force_lag" in d.selected and "delay" not in d.selected, (d.selected, d.alternatives)
+
+
+def test_a_force_exponent_absorbed_by_the_baseline_is_found(tmp_path):
+    """Seed 3300's force exponent of 3, whose screen from the calibrated baseline (x_0 mimics it)
+    ended at n_F 2.14 and a sensor bend was chosen: fitted to convergence beside a start from where
+    the calibration started (ForceExponent.absorbed_by), it is found and told from the bend."""
+    planted = {"force_exponent": dict(dm.CATALOGUE["force_exponent"].example)}
+    _, _, d = _diagnose(tmp_path, 3300, planted)
+    assert d.selected == ["force_exponent"], (d.selected, d.alternatives)
+    assert abs(d.parameters["n_F"] / 3.0 - 1) <= dm.CATALOGUE["force_exponent"].tolerance["n_F"], d.parameters["n_F"]

@@ -172,3 +172,15 @@ def test_the_innovations_test_reads_the_held_out_samples_and_their_dependence():
     assert t2["effective_share"] < 0.2 and t2["lr_statistic"] < t["lr_statistic"] / 5
     # two parameters: a larger threshold
     assert pipeline.innovations_test((l_c, z), (l_r, z), hold, 2)["threshold"] == pytest.approx(13.82, abs=0.01)
+
+
+def test_a_screen_goes_to_convergence_by_its_ratio_or_its_gain():
+    """pipeline.to_convergence: seed 3200's force exponent, screened short of convergence at a gain
+    of 14.9 % but a ratio of 3.4 for 13.8 (21 effective samples), is fitted to convergence; the same
+    screen converged, or one below the 3 % minimum gain, is not; half the threshold suffices alone."""
+    exponent = {"lr_statistic": 3.4, "threshold": 13.8, "held_out_gain": 0.149}
+    assert pipeline.to_convergence(exponent, converged=False)
+    assert not pipeline.to_convergence(exponent, converged=True)
+    small = {**exponent, "held_out_gain": 0.002}
+    assert not pipeline.to_convergence(small, converged=False)
+    assert pipeline.to_convergence({**small, "lr_statistic": 7.0}, converged=True)

@@ -316,6 +316,15 @@ SCREEN_SHARE = 0.5
 FULL_NFEV = 60
 
 
+def to_convergence(screened: Mapping[str, float], converged: bool) -> bool:
+    """Whether a screened candidate (its judged entry: ``lr_statistic``, ``threshold``,
+    ``held_out_gain``) is fitted to convergence: a screen whose ratio reaches :data:`SCREEN_SHARE`
+    of its threshold, or one that stopped short of convergence and already meets the acceptance's
+    minimum gain. (An effect the baseline can absorb is not screened: always fitted.)"""
+    return (screened["lr_statistic"] >= SCREEN_SHARE * screened["threshold"]
+            or (not converged and screened["held_out_gain"] >= MIN_GAIN))
+
+
 def _lr(r: np.ndarray, cost_before: float) -> tuple[float, float, float]:
     """The cost of a weighted residual ``r`` (y errors, then u errors), its effective samples (the
     fewer of its two halves') and the likelihood-ratio statistic ``N_eff·ln(J_before/J)``."""
@@ -555,9 +564,8 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
                     # those the baseline can absorb (a limit mimicked by u_0): their screen starts from
                     # the calibrated baseline that absorbed them, and only the full fit's retry from
                     # where the calibration started can see them
-                    order = [e for e in order if CATALOGUE[e].absorbed_by
-                             or results[e][0]["lr_statistic"] >= SCREEN_SHARE * results[e][0]["threshold"]
-                             or (e not in converged and results[e][0]["held_out_gain"] >= MIN_GAIN)]
+                    order = [e for e in order
+                             if CATALOGUE[e].absorbed_by or to_convergence(results[e][0], e in converged)]
                     if not order:
                         break
                     say(f"  fitting {len(order)} of them to convergence: {', '.join(order)}")
