@@ -63,18 +63,25 @@ int maglev_replay_point(const double *params, double x, double i, MaglevPoint *o
     return 0;
 }
 
-int maglev_replay_forces(const double *params, const double *x, const double *i, size_t n, double *F, char *msg,
-                         size_t len) {
-    MaglevPlant m;
-    if (maglev_replay_check_params(params, msg, len)) return -1;
-    load(&m, params, msg, len);
+/* Positions [m] handed in by the caller: every one finite, else an error naming the first that is not. */
+static int finite_positions(const double *x, size_t n, char *msg, size_t len) {
     for (size_t k = 0; k < n; k++) {
         if (!isfinite(x[k])) {
             snprintf(msg, len, "position x = %g m is not finite", x[k]);
             return -1;
         }
-        F[k] = maglev_force(&m, isnan(i[k]) ? maglev_equilibrium_current(&m, x[k]) : i[k], x[k], NULL, NULL);
     }
+    return 0;
+}
+
+int maglev_replay_forces(const double *params, const double *x, const double *i, size_t n, double *F, char *msg,
+                         size_t len) {
+    MaglevPlant m;
+    if (maglev_replay_check_params(params, msg, len)) return -1;
+    load(&m, params, msg, len);
+    if (finite_positions(x, n, msg, len)) return -1;
+    for (size_t k = 0; k < n; k++)
+        F[k] = maglev_force(&m, isnan(i[k]) ? maglev_equilibrium_current(&m, x[k]) : i[k], x[k], NULL, NULL);
     return 0;
 }
 
@@ -83,13 +90,8 @@ int maglev_replay_readings(const double *params, const double *x, size_t n, doub
     MaglevPlant m;
     if (maglev_replay_check_params(params, msg, len)) return -1;
     load(&m, params, msg, len);
-    for (size_t k = 0; k < n; k++) {
-        if (!isfinite(x[k])) {
-            snprintf(msg, len, "position x = %g m is not finite", x[k]);
-            return -1;
-        }
-        y[k] = maglev_reading(&m, x[k], t);
-    }
+    if (finite_positions(x, n, msg, len)) return -1;
+    for (size_t k = 0; k < n; k++) y[k] = maglev_reading(&m, x[k], t);
     return 0;
 }
 
