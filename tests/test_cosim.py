@@ -166,8 +166,10 @@ def test_each_effect_agrees_between_the_c_plant_and_the_reference(fmu_path, effe
     base = simulate("baseline", w, backend="fmu", fmu=fmu_path)
     assert np.max(np.abs(a["y"] - base["y"])) > 1e-4          # the effect acts
     # Friction's tanh(v/0.1 mm/s) turns sharply where the ball reverses: the C plant's RK4 steps
-    # through it with 1.2e-6 MU of error (6 nm) against the adaptive DOP853 reference.
-    tol = 2e-6 if "F_c" in effect else 1e-6
+    # through it with 3.1e-6 MU of error (16 nm; a hundredth of the CE152's sensor noise) against the
+    # adaptive DOP853 reference, at substeps of h*F_c/(m_k*v_c) <= 0.5 (1.2e-6 MU at 0.1, five times
+    # the substeps).
+    tol = 5e-6 if "F_c" in effect else 1e-6
     assert np.max(np.abs(a["y"] - b["y"])) <= tol
     assert np.max(np.abs(a["u"] - b["u"])) <= 10 * tol
 

@@ -961,7 +961,7 @@ static void test_budget_decided_before_integrating(void) {
         const char *names[2];
     } cases[] = { /* R_c = 1 Ohm with L_0 = 0.1 H: the coil allows substeps of 20 ms, so the others set them */
         {"solver_step", 2, {VR_R_c, VR_solver_step}, {1.0, 1e-6}, 10.0, {"solver_step = 1e-06 s"}},
-        {"friction", 2, {VR_R_c, VR_F_c}, {1.0, 2e-3}, 100.0, {"F_c = 0.002 N"}}, /* substeps of 42 us */
+        {"friction", 2, {VR_R_c, VR_F_c}, {1.0, 2e-2}, 100.0, {"F_c = 0.02 N"}}, /* substeps of 21 us */
         {"force lag", 2, {VR_R_c, VR_T_F}, {1.0, 1e-5}, 20.0, {"T_F = 1e-05 s"}},  /* 20 us */
         {"voltage drive", 2, {VR_R_c, VR_L_0}, {4.17, 1e-4}, 10.0, {"R_c = 4.17 Ohm", "L_0 = 0.0001 H"}}, /* 4.8 us */
     };
