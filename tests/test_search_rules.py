@@ -197,3 +197,27 @@ def test_an_absorbable_effect_is_fitted_again_only_where_it_was_at_work():
     assert not pipeline.at_work("force_exponent", {"held_out_gain": 0.05}, {"n_F": 2.004})
     assert not pipeline.at_work("force_exponent", {"held_out_gain": 0.9 * gain}, {"n_F": 2.3})
     assert pipeline.at_work("force_exponent", {"held_out_gain": gain}, {"n_F": 2.3})
+
+
+def test_the_innovations_credit_the_effect_not_the_candidates_other_calibration(limited):
+    """pipeline.by_innovations_alone: a candidate is tested against the calibrated model without it
+    and against its own fit with the effect turned off, whichever is the stricter. A friction of
+    0.02 % of the weight on a well-calibrated baseline, beside a calibrated model whose D/A offset is
+    5 % of the range off, is likelier than that model only through its calibration: rejected. The
+    limit, tested against the same baseline without it, is accepted."""
+    rec, prob, hold, first = limited
+    current = {**first, "i_max": prob.base["i_max"], "u_0": first["u_0"] + 0.05}
+    entries = {}
+    for e, vals in (("coulomb_friction", {**first, "i_max": prob.base["i_max"], "F_c": 2e-5, "v_c": 1e-3}),
+                    ("current_saturation", first)):
+        entries[e] = ({"effect": e, "stage": "fit", "accepted": False, "held_out_gain": 0.01}, vals)
+    assert not CATALOGUE["coulomb_friction"].is_off(entries["coulomb_friction"][1])
+    pipeline.by_innovations_alone(prob, hold, current, entries, lambda s: None)
+    friction, limit = entries["coulomb_friction"][0], entries["current_saturation"][0]
+    assert not friction["accepted"] and abs(friction["innovations"]["lr_statistic"]) < 2.0, friction
+    assert limit["accepted"] and limit["accepted_by"] == "innovations", limit
+    # against the mis-calibrated model alone the friction would have passed: what the old test did
+    off_base = pipeline.innovation_terms(prob, current)
+    old = pipeline.innovations_test(pipeline.innovation_terms(prob, entries["coulomb_friction"][1]), off_base, hold, 2,
+                                    pipeline.ALPHA)
+    assert old["lr_statistic"] > old["threshold"], old
