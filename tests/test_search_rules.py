@@ -40,16 +40,21 @@ def limited(tmp_path_factory):
     return _limited(tmp_path_factory.mktemp("limited"))
 
 
-def test_a_second_effect_that_only_patches_an_underfitted_first_one_is_rejected(limited):
+def test_a_second_effect_that_only_patches_an_underfitted_first_one_is_rejected(limited, monkeypatch):
     """The first effect held where it under-fits (i_max 8 % high): a candidate whose fit also moved
     the limit to its right value, with a friction of 0.01 % of the weight, beats the model as it
-    stood by far, and gains nothing against that model refitted in full from the candidate's values."""
+    stood by far. It gains nothing against its own fit with the friction off (judge's own-off test),
+    nor, without that test, against the model refitted in full from the candidate's values."""
     rec, prob, hold, first = limited
     assert not rec.warnings, rec.warnings
     assert abs(first["i_max"] / I_MAX - 1) < 0.03, first["i_max"]
     stood = {**first, "i_max": 1.08 * first["i_max"]}
     hold_before = cost_on(prob, stood, hold)
     patch = {**first, "F_c": 1e-4, "v_c": 1e-4}   # friction ~0: the gain is the limit's
+    entry, vals = pipeline.judge(prob, hold, hold_before, {"effect": "coulomb_friction", "values": patch}, 2)
+    assert not entry["accepted"] and entry["own_off_rejected"], entry
+    assert entry["lr_statistic"] > entry["threshold"] > entry["own_off_lr_statistic"], entry
+    monkeypatch.setattr(pipeline, "OWN_OFF_TEST", False)
     entry, vals = pipeline.judge(prob, hold, hold_before, {"effect": "coulomb_friction", "values": patch}, 2)
     assert entry["accepted"], entry                              # as it stood, the patch passes the test
     new, _, null = pipeline.against_refitted(prob, hold, hold_before, ["current_saturation"], entry, vals, 2)
@@ -131,12 +136,15 @@ def test_the_prediction_mode_refit_ends_on_the_criterion_the_verdict_judges():
     assert 1 - further.cost / cost < 0.01, (cost, further.cost, vals)
 
 
-def test_a_held_out_gain_without_a_gain_on_the_fit_blocks_is_not_accepted(limited):
+def test_a_held_out_gain_without_a_gain_on_the_fit_blocks_is_not_accepted(limited, monkeypatch):
     """Issue 22's spurious second effect beside a long-active limit: the held-out free run of such a
     record turns on when the model loses the ball (one 0.8 s block made the 22 % a 78 us delay gained
     on seed 2501, which gained 0.06 % on the blocks it was fitted on). Here the limit's model as the
     candidate (a delay of 10 us) against a held-out cost before set twice as high: it passes the
-    held-out test, and fails the same test on the fit blocks, where it gains nothing."""
+    held-out test, and fails the same test on the fit blocks, where it gains nothing. (The own-off
+    test, which would reject this made-up candidate first, is off here: the rule under test is the
+    fit blocks'.)"""
+    monkeypatch.setattr(pipeline, "OWN_OFF_TEST", False)
     rec, prob, hold, first = limited
     cand = {**first, "T_d": 5e-5}
     hold_before = 2.0 * cost_on(prob, first, hold)

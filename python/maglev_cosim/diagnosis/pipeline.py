@@ -364,6 +364,20 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
     if eff.is_off(vals):
         ok = False
         stats = {**stats, "off": True}
+    if ok and OWN_OFF_TEST:
+        # The candidate's fit moved the baseline too (from where the calibration started, for an
+        # effect the baseline can absorb): the gain must be the effect's, so it is judged against its
+        # own fit with the effect off as well, where that is the better model without it (as
+        # by_innovations_alone does for the filter's likelihood).
+        off_vals = {**vals, **{p: prob.base[p] for p in eff.params}}
+        hold_off = cost_on(prob, off_vals, hold_mask)
+        if hold_off < hold_before:
+            ok_off, stats_off = accept(hold_off, hold_after, n_eff, len(eff.params))
+            stats = {**stats, "held_out_cost_own_off": float(hold_off), "own_off_lr_statistic":
+                     float(stats_off.get("lr_statistic", math.nan))}
+            if not ok_off:
+                ok = False
+                stats = {**stats, "own_off_rejected": True}
     if ok and fit_before is not None and FIT_SIDE_TEST:
         # The classical test on the fitted blocks: an effect that explains nothing of the blocks it
         # was fitted on is not credited with what the held-out blocks show (a free run that loses
@@ -393,6 +407,10 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
 #: Whether :func:`judge` also asks the likelihood-ratio test of the fit blocks (given their cost
 #: before): the classical in-sample test, which the held-out blocks then replicate.
 FIT_SIDE_TEST = True
+#: Whether :func:`judge` also tests a candidate against its own fit with the effect turned off, where
+#: that model is better than the one without it: the gain of a candidate that only moved the
+#: baseline, or the effects already selected, is not the effect's.
+OWN_OFF_TEST = True
 
 
 #: False-distinction probability of :func:`distinct`: the acceptance test's (``acceptance.ALPHA``),
