@@ -153,10 +153,12 @@ def test_a_held_out_gain_without_a_gain_on_the_fit_blocks_is_not_accepted(limite
     assert alone["accepted"] and "fit_lr_statistic" not in alone, alone
     entry, _ = pipeline.judge(prob, hold, hold_before, res, 2, fit_before=cost_on(prob, first, ~hold))
     assert not entry["accepted"] and entry["fit_side_rejected"], entry
-    assert entry["fit_lr_statistic"] < entry["threshold"] < entry["lr_statistic"], entry
+    assert entry["fit_lr_statistic"] < entry["fit_threshold"] < entry["threshold"] < entry["lr_statistic"], entry
+    # the fit blocks' level is the plainer FIT_SIDE_ALPHA (1 % for one parameter: 6.63)
+    assert entry["fit_threshold"] == pytest.approx(6.635, abs=0.01)
     # a fit-block cost before that the candidate does improve on passes
     entry, _ = pipeline.judge(prob, hold, hold_before, res, 2, fit_before=2.0 * cost_on(prob, first, ~hold))
-    assert entry["accepted"] and entry["fit_lr_statistic"] > entry["threshold"], entry
+    assert entry["accepted"] and entry["fit_lr_statistic"] > entry["fit_threshold"], entry
 
 
 def test_the_innovations_test_reads_the_held_out_samples_and_their_dependence():

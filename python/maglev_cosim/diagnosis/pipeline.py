@@ -386,7 +386,9 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
         fit_after, n_fit, lr_fit = _lr(residuals(prob, vals, ~hold_mask), fit_before)
         stats = {**stats, "fit_cost_before": float(fit_before), "fit_cost_after": fit_after,
                  "fit_lr_statistic": float(lr_fit), "fit_n_eff": float(n_fit)}
-        if not lr_fit > stats["threshold"]:
+        fit_threshold = float(chi2.ppf(1 - FIT_SIDE_ALPHA, len(eff.params)))
+        stats = {**stats, "fit_threshold": fit_threshold}
+        if not lr_fit > fit_threshold:
             ok = False
             stats = {**stats, "fit_side_rejected": True}
     if ok:
@@ -407,6 +409,13 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
 #: Whether :func:`judge` also asks the likelihood-ratio test of the fit blocks (given their cost
 #: before): the classical in-sample test, which the held-out blocks then replicate.
 FIT_SIDE_TEST = True
+#: The level of that test on the fit blocks. The held-out test at 1 - ALPHA keeps the false positives
+#: down; the fit blocks' test only asks that the effect act where it was fitted too (what the held-out
+#: blocks replicate), so at a plainer level: a current limit active in five samples of a 12 s record
+#: (project emulator, seed 3700, i_max 0.85 A) gained 59.8 % held out at LR 263 and reached LR 10.1
+#: on the fit blocks, under the 10.8 of ALPHA; the amplifier lag that its transients made look right
+#: (T_a 1.45 ms, none planted) was chosen instead. The spurious delay this test was made for read 0.2.
+FIT_SIDE_ALPHA = 0.01
 #: Whether :func:`judge` also tests a candidate against its own fit with the effect turned off, where
 #: that model is better than the one without it: the gain of a candidate that only moved the
 #: baseline, or the effects already selected, is not the effect's.
