@@ -118,9 +118,12 @@ class Effect(Parameterization):
         axes = [np.linspace(c.lo, c.hi, 5)[1:-1] for c in self.rig_coords(values)]
         return [[float(v) for v in z] for z in np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(axes))]
 
-    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray) -> dict[str, float]:
-        """The parameter values coordinates ``z`` stand for on a rig (:meth:`to_params`, and what the
-        entry computes from the records' positions ``x`` [m] rather than fits)."""
+    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray,
+                   duration: float) -> dict[str, float]:
+        """The parameter values coordinates ``z`` stand for on a rig with calibrated ``values``
+        (:meth:`to_params`, and what the entry computes from the records rather than fits, as
+        :meth:`start_values` moves baseline values with the effect): ``x`` the records' positions [m],
+        ``duration`` their mean length [s]."""
         return self.to_params(z)
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
@@ -202,6 +205,18 @@ class SensorNonlinearity(Effect):
         """Every third of :meth:`starts`' bends, both signs (0 excluded: the fit starts off it)."""
         k = self.rig_scale(values)
         return [[v * k] for v in (-6e4, -2e4, 2e4, 6e4)]
+
+    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray,
+                   duration: float) -> dict[str, float]:
+        """With the sensor's gain ``k_x`` and offset ``y_0`` moved so that the bent sensor reads the same
+        voltage with the same slope at the records' mean position: a pure bend about the operating point,
+        where the calibration matched the reading (nothing on a real rig absorbs an offset as the CE152's
+        ``x_0`` does in :meth:`start_values`; the bend's own zeros, 0 and ``x_cal``, may lie outside a rig's
+        travel)."""
+        k2 = float(z[0]) - float(values.get("k_x2", 0.0))
+        xm, x_cal = float(np.mean(x)), float(values["x_cal"])
+        return {"k_x2": float(z[0]), "k_x": float(values["k_x"]) - k2 * (2 * xm - x_cal),
+                "y_0": float(values["y_0"]) + k2 * xm * xm}
 
     def is_off(self, values: Mapping[str, float]) -> bool:
         """Below 100 V/m²: a deviation under 0.3 um of position over the travel."""
@@ -673,7 +688,8 @@ class ForceExponent(Effect):
     def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
         return [[v] for v in (1.5, 1.8, 2.3, 2.7, 3.2, 3.7)]
 
-    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray) -> dict[str, float]:
+    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray,
+                   duration: float) -> dict[str, float]:
         """With the pivot ``x_n`` at the records' mean position (below ``x_0``), as :meth:`start_values`
         places it: the bent law keeps the force there, where the calibration matched it."""
         return {**self.to_params(z), "x_n": float(min(np.mean(x), float(values["x_0"]) - 1e-4))}
@@ -790,6 +806,15 @@ class ForceGainDrift(Effect):
 
     def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
         return [[v] for v in (-0.02, -0.006, -0.002, 0.002, 0.006, 0.02)]
+
+    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray,
+                   duration: float) -> dict[str, float]:
+        """With the force law's gain (``k_e`` of the exponential law, else ``k_c``) moved, as
+        :meth:`start_values` moves ``k_c``, so that the gain at the records' middle stays calibrated."""
+        gain = "k_e" if float(values.get("k_e", 0.0)) > 0 else "k_c"
+        mid = 0.5 * duration
+        k = float(values[gain]) * (1.0 + float(values.get("kappa_c", 0.0)) * mid) / max(1.0 + float(z[0]) * mid, 1e-3)
+        return {"kappa_c": float(z[0]), gain: k}
 
 
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
