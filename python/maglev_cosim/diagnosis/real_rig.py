@@ -983,6 +983,11 @@ def _cost_of(rig: Rig, records: Sequence[RigRecord], params: PlantParams, parity
     return cost
 
 
+#: The cost :func:`_fit_one` gives a value the plant refuses (far above any replay's: its errors are capped
+#: at 10 of their scales).
+REFUSED_COST = 1e30
+
+
 def _fit_one(rig: Rig, records: Sequence[RigRecord], params: PlantParams, cand: RigCandidate,
              parity: int | None, noise: dict[str, float] | None = None,
              grid_costs: Sequence[float] | None = None) -> tuple[tuple[float, ...], float]:
@@ -991,7 +996,12 @@ def _fit_one(rig: Rig, records: Sequence[RigRecord], params: PlantParams, cand: 
     (coordinates, cost). ``grid_costs``: the grid's costs when known already."""
     c = cand.coords[0]
     at = _cost_of(rig, records, params, parity, noise)
-    cost = lambda v: at(cand.to_values([float(v)]))  # noqa: E731
+
+    def cost(v: float) -> float:
+        # a value the plant refuses (a bend that turns the sensor's slope over) costs a finite amount:
+        # the bounded search's parabolic steps subtract costs, and inf - inf is no step
+        out = at(cand.to_values([float(v)]))
+        return out if np.isfinite(out) else REFUSED_COST
     grid = [g[0] for g in cand.grid]
     costs = list(grid_costs) if grid_costs is not None else _map(cost, grid)
     j = int(np.argmin(costs))
