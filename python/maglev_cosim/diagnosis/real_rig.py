@@ -798,13 +798,13 @@ EFFECT_MAXFEV = 20
 #: ``T_F2``, as eddy currents in a solid core give it beside the fast lag ``T_F`` (their time constants
 #: spread; one lag is a compromise between the fast and the slow ones). When :data:`SECOND_FORCE_LAG_FIT`
 #: says so, its two parameters are fitted by :func:`calibrate` (:func:`run`) within these bounds (name:
-#: (lower, upper, start)), and the effect search does not try it; a share fitted to 0 leaves it off.
+#: (lower, upper, start)); a share fitted to 0 leaves it off. The effect search leaves it out
+#: (:data:`RIG_LEFT_OUT`).
 SECOND_FORCE_LAG = {"beta_F": (0.0, 0.95, 0.3), "T_F2": (1e-3, 0.1, 0.01)}
-#: How :func:`run` fits the second force lag: None (not in the calibration: the effect search tries it as
-#: the catalogue's ``eddy_lag``), "joint" (with the force law, the selected effects and the disturbance
-#: model, in their refit) or "after" (after that refit, with the disturbance model, the rest held). Off by
-#: default: on the shared Inteco records neither raised the validation records' skill (docs/rigs.md, the
-#: lift-off error's candidates).
+#: How :func:`run` fits the second force lag: None (not at all: the model of before), "joint" (with the
+#: force law, the selected effects and the disturbance model, in their refit) or "after" (after that
+#: refit, with the disturbance model, the rest held). Off by default: on the shared Inteco records
+#: neither raised the validation records' skill (docs/rigs.md, the lift-off error's candidates).
 SECOND_FORCE_LAG_FIT: str | None = None
 #: Held-out blocks [s]: the effect is fitted on the even blocks' predictions, judged on the odd ones.
 EFFECT_BLOCK_S = 1.0
@@ -1002,6 +1002,7 @@ def _fit_one(rig: Rig, records: Sequence[RigRecord], params: PlantParams, cand: 
         # the bounded search's parabolic steps subtract costs, and inf - inf is no step
         out = at(cand.to_values([float(v)]))
         return out if np.isfinite(out) else REFUSED_COST
+
     grid = [g[0] for g in cand.grid]
     costs = list(grid_costs) if grid_costs is not None else _map(cost, grid)
     j = int(np.argmin(costs))
@@ -1808,8 +1809,8 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         say(f"calibrated in {cal['evaluations']} evaluations: cost {cal['cost_before']:.4g} -> {cal['cost_after']:.4g}")
     if cal is not None and effects:
         second = tuple(SECOND_FORCE_LAG) if mode else ()
-        # the second force lag is the catalogue's eddy_lag: the effect search tries it unless the
-        # calibration fits it
+        # the second force lag is the catalogue's eddy_lag: never tried by the effect search when the
+        # calibration fits it (RIG_LEFT_OUT leaves it out of the search in any case, for now)
         result["effects"] = effect_search(rig, fit_on, params, say, noise=noise, skip=mech + ("T_d",) + second)
         chosen = list(result["effects"]["parameters"])
         params = params.replace(**result["effects"]["parameters"], **result["effects"]["computed"])
