@@ -202,7 +202,8 @@ class SensorNonlinearity(Effect):
         return super().rig_scale(values) * REFERENCE_TRAVEL / (float(values["x_max"]) - float(values["x_min"]))
 
     def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
-        """Every third of :meth:`starts`' bends, both signs (0 excluded: the fit starts off it)."""
+        """The ends of :meth:`starts`' bends and a third of them, both signs (0 excluded: the fit starts
+        off it)."""
         k = self.rig_scale(values)
         return [[v * k] for v in (-6e4, -2e4, 2e4, 6e4)]
 
