@@ -1972,7 +1972,8 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
     ef = result.get("effects")
     if ef:
         last = max(c["round"] for c in ef["candidates"])
-        tried = ", ".join(f"{c['effect']} ({c['parameter']} = {_values(c)}) {-100 * c['held_out_gain']:+.1f} %"
+        tried = ", ".join(f"{c['effect']} (off: no start gained {100 * REFINE_MIN_GAIN:g} %)" if "screened" in c
+                          else f"{c['effect']} ({c['parameter']} = {_values(c)}) {-100 * c['held_out_gain']:+.1f} %"
                           for c in ef["candidates"] if c["round"] == last)
         if ef["selected"]:
             reasons.append(f"effects found: {', '.join(ef['selected'])} ("
@@ -2251,10 +2252,20 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                   f"prediction cost of the gap 20 and 50 ms ahead and of the current 20 ms ahead (negative is better; at most −{100 * ef['min_gain']:.0f} % to be selected).",
                   "", "| round | effect | acts on | parameter | fitted value | held-out cost change: gap / current |",
                   "|---|---|---|---|---|---|"]
-        lines += [f"| {c['round']} | {c['effect']} | {c['location']} | {c['parameter']} | {_values(c)} | "
-                  + " / ".join(f"{-100 * c['held_out_gains'][k]:+.1f} %" if k in c["held_out_gains"] else "-"
-                               for k in ("y", "i")) + " |" for c in ef["candidates"]]
+        lines += [f"| {c['round']} | {c['effect']} | {c['location']} | {c['parameter']} | "
+                  + (f"off (no start lowered the fit blocks' cost by {100 * REFINE_MIN_GAIN:g} %) | - / - |"
+                     if "screened" in c else
+                     f"{_values(c)} | " + " / ".join(f"{-100 * c['held_out_gains'][k]:+.1f} %" if k in c["held_out_gains"]
+                                                     else "-" for k in ("y", "i")) + " |")
+                  for c in ef["candidates"]]
         lines += ["", f"Selected: {', '.join(ef['selected']) or 'none'}.", ""]
+        # what the rig was not offered, and why (its drive and force law, or the real-rig search's own
+        # exclusions), and what the calibration fitted instead
+        missing = {n: why for n, why in (ef.get("offered") or {}).items() if why is not None}
+        if missing:
+            lines += ["Not offered on this rig: " + "; ".join(f"{n} ({why})" for n, why in missing.items()) + ".", ""]
+        if ef.get("skipped"):
+            lines += [f"Not tried, the calibration fits their parameters: {', '.join(ef['skipped'])}.", ""]
     co = res.get("correction")
     if co:
         s = co["summary"]
