@@ -36,6 +36,26 @@ BASELINE = Baseline()
 #: parameters are declared there, once (``docs/adding-an-effect.md``).
 EFFECT_PARAMS: dict[str, tuple[str, ...]] = effect_params()
 
+#: The coil drives a rig can have (:attr:`maglev_cosim.rigs.Rig.drive`): ``current``, an amplifier that sets
+#: the coil current from the controller's signal (the CE152, Eq. 2), and ``voltage``, the controller's
+#: voltage (PWM) across the coil, whose current follows the coil's ``R_c`` and ``L(x, i)``.
+DRIVES: tuple[str, ...] = ("current", "voltage")
+#: The force laws of the plant: Eq. 8's inverse square ``k_c*i^2/(x_0 - x)^2`` (``k_c > 0``) and the
+#: exponential law ``k_e*exp(-(x_0 - x)/z_e)*i^2`` (``k_e > 0``, the Inteco's).
+FORCE_LAWS: tuple[str, ...] = ("inverse-square", "exponential")
+#: The CE152's sensor gain [V/m] (the C table's default of ``k_x``): the unit in which the catalogue's
+#: ranges on the sensor voltage are set (:meth:`Effect.rig_coords`).
+REFERENCE_K_X: float = param_table()["k_x"][0]
+#: The CE152's travel [m] (the C table's default of ``x_max`` above ``x_min``): the length over which
+#: the sensor's bend ``k_x2`` was ranged.
+REFERENCE_TRAVEL: float = param_table()["x_max"][0] - param_table()["x_min"][0]
+
+
+def force_law(values: Mapping[str, float]) -> str:
+    """The force law of a parameter set (:data:`FORCE_LAWS`): exponential where ``k_e > 0`` (a rig with
+    it sets ``k_c = 0``), else Eq. 8's inverse square."""
+    return "exponential" if values.get("k_e", 0.0) > 0 else "inverse-square"
+
 
 class Effect(Parameterization):
     """A candidate effect of the catalogue. Its FMU parameters are the C table's rows of its name
@@ -58,6 +78,53 @@ class Effect(Parameterization):
     #: there (``tests/test_diagnose.py``; an empty ``tolerance``: the effect is not expected to be found).
     example: Mapping[str, float] = {}
     tolerance: Mapping[str, float] = {}
+
+    #: The coil drives (:data:`DRIVES`) and force laws (:data:`FORCE_LAWS`) on which the entry means
+    #: something: a real rig's effect search (:func:`maglev_cosim.diagnosis.real_rig.rig_candidates`)
+    #: offers it only on such rigs. Every drive or law left out has its reason in :attr:`not_for`.
+    drives: tuple[str, ...] = DRIVES
+    force_laws: tuple[str, ...] = FORCE_LAWS
+    #: Why the entry is left out, one line per drive or force law it does not name.
+    not_for: Mapping[str, str] = {}
+    #: Coordinates in volts of the sensor (a pickup, a drift, a bend): their ranges were set for the
+    #: CE152's sensor gain, and on a rig with another scale they follow its ``k_x`` (:meth:`rig_coords`).
+    sensor_volts: tuple[str, ...] = ()
+
+    def applies(self, drive: str, law: str) -> str | None:
+        """None where the entry means something for a rig of this coil ``drive`` and force ``law``, else
+        the reason it is left out (:attr:`not_for`)."""
+        for what, have in ((drive, self.drives), (law, self.force_laws)):
+            if what not in have:
+                return self.not_for[what]
+        return None
+
+    def rig_scale(self, values: Mapping[str, float]) -> float:
+        """The factor from the catalogue's sensor volts (:attr:`sensor_volts`) to a rig's with ``values``:
+        its sensor gain ``k_x`` over the CE152's (a rig whose record holds the position has ``k_x = 1``)."""
+        return float(values["k_x"]) / REFERENCE_K_X
+
+    def rig_coords(self, values: Mapping[str, float]) -> tuple[Coord, ...]:
+        """The coordinates with their ranges on a rig with parameters ``values``: the catalogue's, those in
+        sensor volts scaled by :meth:`rig_scale`."""
+        k = self.rig_scale(values)
+        return tuple(Coord(c.name, c.scale * k, c.lo * k, c.hi * k) if c.name in self.sensor_volts else c
+                     for c in self.coords)
+
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
+        """A coarse start grid in :meth:`rig_coords`, for a search where each start is a replay of whole
+        records (a real rig's effect search: its records have no closed-loop :class:`Problem`, so
+        :meth:`starts` cannot place them): the quartiles of each coordinate's range, all combinations.
+        ``values``: the rig's calibrated parameters; ``x``: the records' positions [m]."""
+        axes = [np.linspace(c.lo, c.hi, 5)[1:-1] for c in self.rig_coords(values)]
+        return [[float(v) for v in z] for z in np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(axes))]
+
+    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray,
+                   duration: float) -> dict[str, float]:
+        """The parameter values coordinates ``z`` stand for on a rig with calibrated ``values``
+        (:meth:`to_params`, and what the entry computes from the records rather than fits, as
+        :meth:`start_values` moves baseline values with the effect): ``x`` the records' positions [m],
+        ``duration`` their mean length [s]."""
+        return self.to_params(z)
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         """Starting coordinates, placed from the record where the cost is flat or multimodal."""
@@ -96,11 +163,20 @@ class _TimeConstant(Effect):
     """A lag or a delay: one time constant. Near the stability limit the replay error is far from
     quadratic in it, and a coarse start can leave least squares in a side valley: a dense grid."""
 
+    #: The real-rig search's start grid [s]: an octave apart over the time constants a 1 kHz rig shows
+    #: (each start there costs a replay of whole records, against the dense :meth:`starts` here).
+    RIG_GRID = (5e-4, 1e-3, 2e-3, 4e-3, 8e-3)
+
     def __init__(self, name: str, lo: float, location: str, description: str, example: float,
-                 tolerance: float) -> None:
+                 tolerance: float, not_for: Mapping[str, str] | None = None) -> None:
         self.name, self.description, self.location = name, description, location
         self.coords = (Coord(self.params[0], 1e-3, lo, 0.05),)
         self.example, self.tolerance = {self.params[0]: example}, {self.params[0]: tolerance}
+        self.not_for = dict(not_for or {})
+        self.drives = tuple(d for d in DRIVES if d not in self.not_for)
+
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
+        return [[v] for v in self.RIG_GRID if self.coords[0].lo <= v <= self.coords[0].hi]
 
     def is_off(self, values: Mapping[str, float]) -> bool:
         """At most 20 us above the lower bound: 2 % of a 1 kHz sample."""
@@ -118,6 +194,30 @@ class SensorNonlinearity(Effect):
     example = {"k_x2": -30000.0}
     tolerance = {"k_x2": 0.35}
     coords = (Coord("k_x2", 1e4, -1e6, 1e6),)
+    sensor_volts = ("k_x2",)
+
+    def rig_scale(self, values: Mapping[str, float]) -> float:
+        """The sensor gain's ratio, and the travel's: the bend over a rig's travel ``k_x2*travel^2``
+        stays the same share of its span ``k_x*travel`` as on the CE152."""
+        return super().rig_scale(values) * REFERENCE_TRAVEL / (float(values["x_max"]) - float(values["x_min"]))
+
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
+        """The ends of :meth:`starts`' bends and a third of them, both signs (0 excluded: the fit starts
+        off it)."""
+        k = self.rig_scale(values)
+        return [[v * k] for v in (-6e4, -2e4, 2e4, 6e4)]
+
+    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray,
+                   duration: float) -> dict[str, float]:
+        """With the sensor's gain ``k_x`` and offset ``y_0`` moved so that the bent sensor reads the same
+        voltage with the same slope at the records' mean position: a pure bend about the operating point,
+        where the calibration matched the reading (nothing on a real rig absorbs an offset as the CE152's
+        ``x_0`` does in :meth:`start_values`; the bend's own zeros, 0 and ``x_cal``, may lie outside a rig's
+        travel)."""
+        k2 = float(z[0]) - float(values.get("k_x2", 0.0))
+        xm, x_cal = float(np.mean(x)), float(values["x_cal"])
+        return {"k_x2": float(z[0]), "k_x": float(values["k_x"]) - k2 * (2 * xm - x_cal),
+                "y_0": float(values["y_0"]) + k2 * xm * xm}
 
     def is_off(self, values: Mapping[str, float]) -> bool:
         """Below 100 V/m²: a deviation under 0.3 um of position over the travel."""
@@ -148,6 +248,9 @@ class CurrentSaturation(Effect):
     tolerance = {"i_max": 0.03}
     absorbed_by = ("u_0",)
     coords = (Coord("i_max", 0.05, 0.2, 1.5),)
+    drives = ("current",)
+    not_for = {"voltage": "a voltage drive's current is bounded by its supply over R_c (the rig file's input range), "
+                          "not by an amplifier's limit"}
 
     def is_off(self, values: Mapping[str, float]) -> bool:
         """Within 1 % of the 1.5 A the D/A range implies."""
@@ -301,6 +404,7 @@ class PeriodicDisturbance(Effect):
     example = {"A_d": 0.008, "f_d": 37.0, "phi_d": 1.0}
     tolerance = {"A_d": 0.05, "f_d": 0.002}
     coords = (Coord("a", 0.01, -1.0, 1.0), Coord("b", 0.01, -1.0, 1.0), Coord("f_d", 0.01, 0.5, 450.0))
+    sensor_volts = ("a", "b")
 
     def to_params(self, z: Sequence[float]) -> dict[str, float]:
         a, b, f = (float(v) for v in z)
@@ -533,6 +637,12 @@ class CoulombFriction(Effect):
         w = prob.base["m_k"] * prob.base["g"]
         return [[float(f) * w, v] for f in (0.001, 0.003, 0.01, 0.02, 0.05) for v in (5e-5, 3e-4, 2e-3)]
 
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
+        """Every other of :meth:`starts`' sizes, 0.3 to 3 % of the weight (within the range), each over
+        0.3 and 2 mm/s."""
+        w = float(values["m_k"]) * float(values["g"])
+        return [[min(f * w, self.coords[0].hi), v] for f in (0.003, 0.01, 0.03) for v in (3e-4, 2e-3)]
+
 
 class ForceExponent(Effect):
     """The force law's exponent, about the record's mean position: ``x_n`` follows the record, so
@@ -551,6 +661,8 @@ class ForceExponent(Effect):
     #: innovations (LR 57).
     absorbed_by = ("x_0", "k_c")
     coords = (Coord("n_F", 0.1, 1.0, 4.0),)
+    force_laws = ("inverse-square",)
+    not_for = {"exponential": "n_F bends Eq. 8's inverse square only (C: force_gain); the exponential law is left as it is"}
 
     def to_params(self, z: Sequence[float]) -> dict[str, float]:
         return {"n_F": float(z[0])}
@@ -574,6 +686,15 @@ class ForceExponent(Effect):
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         return [[v] for v in (1.5, 1.8, 2.3, 2.7, 3.2, 3.7)]
 
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
+        return [[v] for v in (1.5, 1.8, 2.3, 2.7, 3.2, 3.7)]
+
+    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray,
+                   duration: float) -> dict[str, float]:
+        """With the pivot ``x_n`` at the records' mean position (below ``x_0``), as :meth:`start_values`
+        places it: the bent law keeps the force there, where the calibration matched it."""
+        return {**self.to_params(z), "x_n": float(min(np.mean(x), float(values["x_0"]) - 1e-4))}
+
 
 class AmplifierDeadZone(Effect):
     name = "amplifier_dead_zone"
@@ -582,6 +703,9 @@ class AmplifierDeadZone(Effect):
     example = {"u_dz": 0.5}
     tolerance = {}
     coords = (Coord("u_dz", 0.1, 0.0, 3.0),)
+    drives = ("current",)
+    not_for = {"voltage": "a dead zone of the current amplifier's input; a PWM stage's floor is the rig file's "
+                          "V_min, calibrated with the coil"}
 
     def is_off(self, values: Mapping[str, float]) -> bool:
         """Below 1 mV: a fifth of a 12-bit D/A step at 5 V/MU."""
@@ -598,6 +722,9 @@ class AmplifierDeadZone(Effect):
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         return [[v] for v in (0.05, 0.15, 0.3, 0.6, 1.0)]
 
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
+        return [[v] for v in (0.05, 0.15, 0.3, 0.6, 1.0)]
+
 
 class SensorDrift(Effect):
     """The sensor's offset creeping at a steady rate through the record (its electronics, or the coil
@@ -609,6 +736,7 @@ class SensorDrift(Effect):
     example = {"r_y": 0.01}
     tolerance = {"r_y": 0.2}
     coords = (Coord("r_y", 1e-3, -0.2, 0.2),)
+    sensor_volts = ("r_y",)
 
     def is_off(self, values: Mapping[str, float]) -> bool:
         """Below 10 uV/s: 0.2 um of position over a 12 s record."""
@@ -616,6 +744,10 @@ class SensorDrift(Effect):
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         return [[v] for v in (-0.03, -0.01, -0.003, 0.003, 0.01, 0.03)]
+
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
+        k = self.rig_scale(values)
+        return [[v * k] for v in (-0.03, -0.01, -0.003, 0.003, 0.01, 0.03)]
 
 
 class EddyLag(Effect):
@@ -636,6 +768,9 @@ class EddyLag(Effect):
         return values["beta_F"] < 0.01
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
+        return [[b, t] for b in (0.2, 0.5) for t in (5e-3, 1.5e-2, 5e-2)]
+
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
         return [[b, t] for b in (0.2, 0.5) for t in (5e-3, 1.5e-2, 5e-2)]
 
 
@@ -670,10 +805,23 @@ class ForceGainDrift(Effect):
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         return [[v] for v in (-0.02, -0.006, -0.002, 0.002, 0.006, 0.02)]
 
+    def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
+        return [[v] for v in (-0.02, -0.006, -0.002, 0.002, 0.006, 0.02)]
+
+    def rig_values(self, z: Sequence[float], values: Mapping[str, float], x: np.ndarray,
+                   duration: float) -> dict[str, float]:
+        """With the force law's gain (``k_e`` of the exponential law, else ``k_c``) moved, as
+        :meth:`start_values` moves ``k_c``, so that the gain at the records' middle stays calibrated."""
+        gain = "k_e" if float(values.get("k_e", 0.0)) > 0 else "k_c"
+        mid = 0.5 * duration
+        k = float(values[gain]) * (1.0 + float(values.get("kappa_c", 0.0)) * mid) / max(1.0 + float(z[0]) * mid, 1e-3)
+        return {"kappa_c": float(z[0]), gain: k}
+
 
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     _TimeConstant("amplifier_lag", 0.0, "actuator", "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5",
-                  0.003, 0.10),
+                  0.003, 0.10, not_for={"voltage": "T_a is the current amplifier's lag; a voltage drive's current "
+                                                   "lags through the coil's L(x, i)/R_c, calibrated with the coil"}),
     # below 50 us a force lag is invisible at 1 kHz
     _TimeConstant("force_lag", 5e-5, "mechanics", "the magnetic force following the static law through a lag T_F "
                   "(eddy currents)", 0.002, 0.15),
@@ -702,6 +850,10 @@ def _check_catalogue() -> None:
         raise RuntimeError(f"effect(s) of the C variable table without a catalogue entry: {', '.join(missing)}")
     table = param_table()
     for eff in CATALOGUE.values():
+        left_out = (set(DRIVES) - set(eff.drives)) | (set(FORCE_LAWS) - set(eff.force_laws))
+        if left_out != set(eff.not_for) or not set(eff.drives) <= set(DRIVES) or not set(eff.force_laws) <= set(FORCE_LAWS):
+            raise RuntimeError(f"{eff.name}: every drive and force law it leaves out needs its reason in not_for "
+                               f"(left out: {sorted(left_out)}, reasons for: {sorted(eff.not_for)})")
         if not set(eff.example) <= set(eff.params) >= set(eff.tolerance):
             raise RuntimeError(f"{eff.name}: its example and tolerances name parameters it does not have")
         for c in eff.coords:

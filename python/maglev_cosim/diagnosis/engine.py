@@ -76,8 +76,9 @@ def diagnose(record_or_records: Records | Sequence[Records], *, rig: Rig | str |
         Records the calibration is judged on and not fitted to.
     effects : sequence of str, or bool, optional
         CE152: the catalogue entries to try (default :data:`~.effects.DEFAULT_EFFECTS`). A real rig
-        tries the effects its drive can take (:data:`~.real_rig.RIG_EFFECTS`), unless ``effects`` is
-        False or empty; a list of names is refused for it.
+        tries the effects its drive can take (:func:`~.real_rig.rig_candidates`: the catalogue entries
+        that apply to its drive and force law), unless ``effects`` is False or empty; a list of names
+        is refused for it.
     out : path, optional
         Where ``diagnosis.json`` (``json_name``), ``report.md``, ``report.html``, the plots and
         ``maglev_calibrated.fmu`` go; None: nothing is kept (a real rig's stages write into a
@@ -160,7 +161,7 @@ def _ce152_joint(recs: list[Recording], held: list[Recording], *, effects, out, 
 def _rig(recs: list[Recording], held: list[Recording], *, rig: Rig, effects, out, progress, controller,
          per_record: bool, json_name: str) -> DiagnosisResult:
     if effects not in (None, True, False) and list(effects):
-        raise ValueError("a real rig tries the effects its drive can take (maglev_cosim.diagnosis.real_rig.RIG_EFFECTS), "
+        raise ValueError("a real rig tries the effects its drive can take (maglev_cosim.diagnosis.real_rig.rig_candidates), "
                          "all or none: effects= is True or False for it (--effects names the CE152 catalogue's)")
     use_effects = effects is not False and not (effects is not None and effects is not True and not list(effects))
     for r in [*recs, *held]:
