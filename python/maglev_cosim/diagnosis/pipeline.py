@@ -342,6 +342,12 @@ def at_work(effect: str, entry: Mapping, values: Mapping[str, float]) -> bool:
     return not CATALOGUE[effect].is_off(values) and entry["held_out_gain"] >= AT_WORK_SHARE * MIN_GAIN
 
 
+def turned_off(prob: Problem, effect: str, values: Mapping[str, float]) -> dict[str, float]:
+    """``values`` with the parameters of ``effect`` at the problem's base, where every effect is off
+    (the other values as they are: a candidate's own fit with the effect turned off)."""
+    return {**values, **{p: prob.base[p] for p in CATALOGUE[effect].params}}
+
+
 def _lr(r: np.ndarray, cost_before: float) -> tuple[float, float, float]:
     """The cost of a weighted residual ``r`` (y errors, then u errors), its effective samples (the
     fewer of its two halves') and the likelihood-ratio statistic ``N_eff·ln(J_before/J)``."""
@@ -369,8 +375,7 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
         # effect the baseline can absorb): the gain must be the effect's, so it is judged against its
         # own fit with the effect off as well, where that is the better model without it (as
         # by_innovations_alone does for the filter's likelihood).
-        off_vals = {**vals, **{p: prob.base[p] for p in eff.params}}
-        hold_off = cost_on(prob, off_vals, hold_mask)
+        hold_off = cost_on(prob, turned_off(prob, res["effect"], vals), hold_mask)
         if hold_off < hold_before:
             ok_off, stats_off = accept(hold_off, hold_after, n_eff, len(eff.params))
             stats = {**stats, "held_out_cost_own_off": float(hold_off), "own_off_lr_statistic":
@@ -529,7 +534,7 @@ def by_innovations_alone(prob: Problem, hold_mask: np.ndarray, current: Mapping[
             and not entry.get("off") and not entry.get("inconsistent")]
     if not todo:
         return
-    own_off = [{**vals, **{p: prob.base[p] for p in CATALOGUE[e].params}} for e, _, vals in todo]
+    own_off = [turned_off(prob, e, vals) for e, _, vals in todo]
     # the model without them, each candidate and each with its effect off, side by side (the filter
     # runs in C, the GIL released)
     base_terms, *terms = thread_map(lambda v: innovation_terms(prob, v), [current, *(t[2] for t in todo), *own_off])
@@ -558,7 +563,7 @@ def against_refitted(prob: Problem, hold_mask: np.ndarray, hold_before: float, s
     Returns the new table entry, the candidate's values and the refitted model's fit."""
     eff = CATALOGUE[entry["effect"]]
     null_parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in selected)]
-    start = {**vals, **{p: prob.base[p] for p in eff.params}}
+    start = turned_off(prob, entry["effect"], vals)
     null = fit(prob.with_base(start), null_parts, [p.to_coords(start) for p in null_parts], max_nfev=FULL_NFEV)
     null = replace(null, values={**start, **null.values})
     alt_parts = [*null_parts, eff]
@@ -837,7 +842,7 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
         say(f"the refit turned {', '.join(dropped)} off: refitting without it")
         for e in dropped:
             selected.remove(e)
-            current = {**current, **{p: prob.base[p] for p in CATALOGUE[e].params}}
+            current = turned_off(prob, e, current)
         values, unc = _refit(prob, current, selected, say)
     return values, unc
 
