@@ -37,16 +37,21 @@ static int load(MaglevPlant *m, const double *params, char *msg, size_t len) {
     return 0;
 }
 
+/* The plant of a parameter vector, each value and the set checked: what every entry point starts from
+ * (loaded once into the caller's plant, not checked on a copy and loaded again). */
+static int checked(MaglevPlant *m, const double *params, char *msg, size_t len) {
+    if (load(m, params, msg, len)) return -1;
+    return maglev_check_params(m, msg, len);
+}
+
 int maglev_replay_check_params(const double *params, char *msg, size_t len) {
     MaglevPlant m;
-    if (load(&m, params, msg, len)) return -1;
-    return maglev_check_params(&m, msg, len);
+    return checked(&m, params, msg, len);
 }
 
 int maglev_replay_point(const double *params, double x, double i, MaglevPoint *out, char *msg, size_t len) {
     MaglevPlant m;
-    if (maglev_replay_check_params(params, msg, len)) return -1;
-    load(&m, params, msg, len);
+    if (checked(&m, params, msg, len)) return -1;
     if (!isfinite(x)) {
         snprintf(msg, len, "position x = %g m is not finite", x);
         return -1;
@@ -77,8 +82,7 @@ static int finite_positions(const double *x, size_t n, char *msg, size_t len) {
 int maglev_replay_forces(const double *params, const double *x, const double *i, size_t n, double *F, char *msg,
                          size_t len) {
     MaglevPlant m;
-    if (maglev_replay_check_params(params, msg, len)) return -1;
-    load(&m, params, msg, len);
+    if (checked(&m, params, msg, len)) return -1;
     if (finite_positions(x, n, msg, len)) return -1;
     for (size_t k = 0; k < n; k++)
         F[k] = maglev_force(&m, isnan(i[k]) ? maglev_equilibrium_current(&m, x[k]) : i[k], x[k], NULL, NULL);
@@ -88,8 +92,7 @@ int maglev_replay_forces(const double *params, const double *x, const double *i,
 int maglev_replay_readings(const double *params, const double *x, size_t n, double t, double *y, char *msg,
                            size_t len) {
     MaglevPlant m;
-    if (maglev_replay_check_params(params, msg, len)) return -1;
-    load(&m, params, msg, len);
+    if (checked(&m, params, msg, len)) return -1;
     if (finite_positions(x, n, msg, len)) return -1;
     for (size_t k = 0; k < n; k++) y[k] = maglev_reading(&m, x[k], t);
     return 0;
@@ -98,8 +101,7 @@ int maglev_replay_readings(const double *params, const double *x, size_t n, doub
 int maglev_replay_positions(const double *params, const double *y, size_t n, double t, double *x, char *msg,
                             size_t len) {
     MaglevPlant m;
-    if (maglev_replay_check_params(params, msg, len)) return -1;
-    load(&m, params, msg, len);
+    if (checked(&m, params, msg, len)) return -1;
     for (size_t k = 0; k < n; k++) {
         if (!isfinite(y[k])) {
             snprintf(msg, len, "reading y[%zu] = %g is not finite", k, y[k]);
