@@ -19,7 +19,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 
@@ -580,6 +580,15 @@ def against_refitted(prob: Problem, hold_mask: np.ndarray, hold_before: float, s
     return new, alt_vals, null
 
 
+def _judged(entry: Mapping, stage: str) -> str:
+    """One line of the search's progress: a candidate's fit and its judgement."""
+    return (f"{entry['effect']} ({stage}): " + ", ".join(f"{p} = {v:.4g}" for p, v in entry["parameters"].items())
+            + f"; held-out cost change {-100 * entry['held_out_gain']:+.1f} % "
+            + f"(LR {entry['lr_statistic']:.1f} vs {entry['threshold']:.1f}"
+            + (f"; on the fit blocks {entry['fit_lr_statistic']:.1f}" if "fit_lr_statistic" in entry else "")
+            + ") -> " + ("accepted" if entry["accepted"] else "rejected"))
+
+
 @dataclass
 class Search:
     selected: list[str]
@@ -598,6 +607,15 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
     last_fits: dict[str, tuple[dict, dict]] = {}   # each candidate's latest fit to convergence (entry, values)
     ctx = get_context("fork") if sys.platform.startswith("linux") else get_context()
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx) if workers > 1 else None
+
+    def run(fn, args) -> Future:
+        """``fn(args)`` on the pool, or at once here (one worker)."""
+        if pool:
+            return pool.submit(fn, args)
+        done: Future = Future()
+        done.set_result(fn(args))
+        return done
+
     try:
         for rnd in range(1, MAX_EFFECTS + 1):
             remaining = [e for e in effects if e not in selected]
@@ -621,44 +639,60 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             # From the second round on, one that its latest fit to convergence found idle is
             # screened like the others (from both bases): what it could absorb has not changed.
             full = {e for e in order if CATALOGUE[e].absorbed_by and (e not in last_fits or at_work(e, *last_fits[e]))}
-            early = {e: pool.submit(_worker, (prob, current, e, FULL_NFEV, None)) for e in order if e in full} if pool else {}
-            for stage, nfev in (("screen", SCREEN_NFEV), ("fit", FULL_NFEV)):
-                if stage == "fit":
-                    # only the candidates the screen found promising are fitted to convergence, and
-                    # those the baseline can absorb (a limit mimicked by u_0): their screen starts from
-                    # the calibrated baseline that absorbed them, and only the full fit's retry from
-                    # where the calibration started can see them
-                    order = [e for e in order if e in full or to_convergence(results[e][0], e in converged)]
-                    if not order:
-                        break
-                    say(f"  fitting {len(order)} of them to convergence: {', '.join(order)}")
-                # (a fit to convergence takes its screen's starts: prepared[e])
-                jobs = [(prob, current, e, nfev, prepared.get(e)) for e in order if stage == "fit" or e not in full]
-                # a screen whose fits converged within SCREEN_NFEV is its fit to convergence: not fitted again
-                done = {e for e in order if stage == "fit" and e in converged}
-                rest = iter(pool.map(_worker, [j for j in jobs if j[2] not in early and j[2] not in done]) if pool
-                            else map(_worker, [j for j in jobs if j[2] not in done]))
-                outs = (early[j[2]].result() if j[2] in early else (None, j[2]) if j[2] in done else next(rest)
-                        for j in jobs)
-                for k, res in enumerate(outs, 1):
-                    if isinstance(res, tuple):        # (None, effect): its converged screen, judged alike
-                        entry, vals = results[res[1]]
-                        entry = {**entry, "stage": stage}
-                        results[res[1]] = (entry, vals)
-                    else:
-                        prepared[res["effect"]] = res.pop("prepared")
-                        if stage == "screen" and res["converged"]:
-                            converged.add(res["effect"])
-                        entry, vals = judge(prob, hold_mask, hold_before, res, rnd, fit_before)
-                        entry["stage"] = stage
-                        cpu[res["effect"]] = res["cpu_s"]
-                        results[res["effect"]] = (entry, vals)
-                    say(f"  [{k}/{len(jobs)}] {entry['effect']} ({stage}): "
-                        + ", ".join(f"{p} = {v:.4g}" for p, v in entry["parameters"].items())
-                        + f"; held-out cost change {-100 * entry['held_out_gain']:+.1f} % "
-                        + f"(LR {entry['lr_statistic']:.1f} vs {entry['threshold']:.1f}"
-                        + (f"; on the fit blocks {entry['fit_lr_statistic']:.1f}" if "fit_lr_statistic" in entry else "")
-                        + ") -> " + ("accepted" if entry["accepted"] else "rejected"))
+            # Each screen is judged as it comes in, and a promising one is fitted to convergence next
+            # (with its screen's starts: prepared[e]), ahead of the screens still waiting: the round's
+            # longest fit no longer waits for the last screen. At most one job per worker is handed
+            # out, so that a fit queued later can still go first; jobs that end together are judged
+            # in the costliest-first order (with a single worker: all of them).
+            todo = [("fit", e, FULL_NFEV, None) for e in order if e in full]
+            todo += [("screen", e, SCREEN_NFEV, None) for e in order if e not in full]
+            n_screens = len(todo) - len(full)
+            flying: dict[Future, tuple[str, str]] = {}
+            fitted: dict[str, dict] = {}
+            k = 0
+            while todo or flying:
+                while todo and (pool is None or len(flying) < workers):
+                    kind, e, nfev, prep = todo.pop(0)
+                    flying[run(_worker, (prob, current, e, nfev, prep))] = (kind, e)
+                ended, _ = wait(list(flying), return_when=FIRST_COMPLETED)
+                for fut in sorted(ended, key=lambda f: order.index(flying[f][1])):
+                    kind, e = flying.pop(fut)
+                    res = fut.result()
+                    if kind == "fit":
+                        fitted[e] = res
+                        continue
+                    prepared[e] = res.pop("prepared")
+                    entry, vals = judge(prob, hold_mask, hold_before, res, rnd, fit_before)
+                    entry["stage"] = "screen"
+                    cpu[e] = res["cpu_s"]
+                    results[e] = (entry, vals)
+                    k += 1
+                    say(f"  [{k}/{n_screens}] " + _judged(entry, "screen"))
+                    # a screen whose fits converged within SCREEN_NFEV is its fit to convergence: not fitted again
+                    if res["converged"]:
+                        converged.add(e)
+                    elif to_convergence(entry, False):
+                        todo.insert(sum(t[0] == "fit" for t in todo), ("fit", e, FULL_NFEV, prepared[e]))
+            # (the table in the costliest-first order, whichever screen ended first)
+            results = {e: results[e] for e in order if e in results}
+            # only the candidates the screen found promising are fitted to convergence, and those the
+            # baseline can absorb (a limit mimicked by u_0): their screen starts from the calibrated
+            # baseline that absorbed them, and only the full fit's retry from where the calibration
+            # started can see them
+            to_fit = [e for e in order if e in full or to_convergence(results[e][0], e in converged)]
+            if to_fit:
+                say(f"  fitting {len(to_fit)} of them to convergence: {', '.join(to_fit)}")
+            for k, e in enumerate(to_fit, 1):
+                if e in fitted:
+                    res = fitted[e]
+                    prepared[e] = res.pop("prepared")
+                    entry, vals = judge(prob, hold_mask, hold_before, res, rnd, fit_before)
+                    cpu[e] = res["cpu_s"]
+                else:                         # its converged screen, judged alike
+                    entry, vals = results[e]
+                entry = {**entry, "stage": "fit"}
+                results[e] = (entry, vals)
+                say(f"  [{k}/{len(to_fit)}] " + _judged(entry, "fit"))
             # (a screen that passes the test is above SCREEN_SHARE: only converged fits are accepted)
             if not selected and not any(entry["accepted"] for entry, _ in results.values()):
                 by_innovations_alone(prob, hold_mask, current, results, say)

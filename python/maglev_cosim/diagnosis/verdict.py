@@ -54,6 +54,7 @@ from ..records.record import Record
 from .effects import BASELINE, CATALOGUE
 from .locate import best_per_location, generic_corrections, locate
 from .metrics import nrmse_fit
+from .problem import on_fit_steps
 from .replay import HORIZON_S, NoiseModel, estimate_noise, predict, replay_injected
 
 #: Lags [samples] of the innovation ARX fit.
@@ -391,14 +392,17 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     # estimate chooses whether the sensor noise has a coloured part; the sensor's noise is the
     # record's, so the baseline's estimate holds the same coloured part (a baseline that lacks an
     # effect would take a pickup for coloured sensor noise, and its random force would not compare)
+    # The estimates (the disturbance levels' likelihood fits; below, the records the model makes
+    # itself for its share and its floor) run on the fits' RK4 substeps; the figures reported, on
+    # the plant's own (they differ by a few thousandths of the noise: problem.fit_solver_step).
     with ThreadPoolExecutor(max_workers=2) as pool:
-        job_final = pool.submit(estimate_noise, rec, final)
-        job_before = pool.submit(estimate_noise, rec, baseline, coloured=False)
+        job_final = pool.submit(estimate_noise, rec, on_fit_steps(final))
+        job_before = pool.submit(estimate_noise, rec, on_fit_steps(baseline), coloured=False)
         noise = job_final.result()
         job_after = pool.submit(figures, rec, final, sims["after"], noise)
         noise_before = job_before.result()
         if noise.coloured:
-            noise_before = estimate_noise(rec, baseline, sensor=noise)
+            noise_before = estimate_noise(rec, on_fit_steps(baseline), sensor=noise)
         before = figures(rec, baseline, sims["before"], noise_before)
         after = job_after.result()
     say(f"  final model: random force {noise.q_force * 1e3:.3g} mN RMS (corner {noise.f_force:.3g} Hz), "
@@ -428,7 +432,7 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     steps = converter_step(rec.y), converter_step(rec.u)
     if share > UNEXPLAINED_SHARE:
         try:
-            share_own = own_share(rec, final, noise, steps)
+            share_own = own_share(rec, on_fit_steps(final), noise, steps)
         except ValueError as exc:    # a simulated record the plant refuses: judge by the share alone
             warnings.append(f"the final model's own records could not be simulated ({exc}): its predictable "
                             f"share of the innovations is judged against {100 * UNEXPLAINED_SHARE:.0f} % alone")
@@ -445,7 +449,7 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     if not bounds and not lacking:
         say("checking the final model against the noise floor its own disturbance model implies")
         try:
-            floor = floor_check(rec, final, noise, after, steps)
+            floor = floor_check(rec, on_fit_steps(final), noise, after, steps)
         except ValueError as exc:
             warnings.append(f"the final model's own records could not be simulated ({exc}): its k-step error is "
                             "not judged against the floor its disturbance model implies")
