@@ -10,7 +10,7 @@ import pytest
 from maglev_cosim.diagnosis import pipeline, problem
 from maglev_cosim.diagnosis.effects import BASELINE, CATALOGUE, profile_scan
 from maglev_cosim.diagnosis.problem import Problem, fit, thread_map
-from maglev_cosim.diagnosis.replay import baseline_params
+from maglev_cosim.diagnosis.replay import baseline_params, replay
 from maglev_cosim.records.record import read_record
 from maglev_cosim.records.synth import synth_record
 
@@ -68,3 +68,45 @@ def test_converged_screen_is_the_fit_to_convergence(prob):
         pytest.skip("the screen did not converge on this record")
     full = pipeline.fit_candidate(prob, current, "delay", pipeline.FULL_NFEV, screen["prepared"])
     assert full["converged"] and full["values"] == screen["values"] and full["nfev"] == screen["nfev"]
+
+
+def test_fit_substep_policy():
+    """The fits' RK4 substep: 1 ms, a sixth of a force lag, half an amplifier lag, never below
+    0.25 ms nor below the plant's own ``solver_step``."""
+    step = problem.fit_solver_step
+    assert step({"solver_step": 1e-4, "T_F": 0.0, "T_a": 0.0}) == problem.FIT_SOLVER_STEP_MAX == 1e-3
+    assert step({"solver_step": 1e-4, "T_F": 3e-3, "T_a": 0.0}) == pytest.approx(5e-4)
+    assert step({"solver_step": 1e-4, "T_F": 0.0, "T_a": 1e-3}) == pytest.approx(5e-4)
+    assert step({"solver_step": 1e-4, "T_F": 5e-4, "T_a": 3e-4}) == problem.FIT_SOLVER_STEP == 2.5e-4
+    assert step({"solver_step": 2e-3}) == 2e-3
+    assert problem.on_fit_steps({"solver_step": 1e-4, "T_F": 3e-3})["solver_step"] == pytest.approx(5e-4)
+
+
+@pytest.mark.parametrize("effect", [{"force_lag": {"T_F": 5e-4}}, {"force_lag": {"T_F": 3e-3}},
+                                    {"amplifier_lag": {"T_a": 3e-3}}, {"delay": {"T_d": 2.5e-3}},
+                                    {"sensor_lag": {"T_y": 2e-3}}])
+def test_fit_substeps_replay_the_plant_steps_loop(tmp_path, effect):
+    """What the fits compare with the record moves by a few millionths of an MU against the plant's
+    own 0.1 ms substeps (sensor noise ~2.5e-4 MU, u's noise response ~4e-3 MU), and the problem's
+    replay runs on the policy's substep."""
+    rec = read_record(synth_record(tmp_path / "r.csv", effects=effect, reference="steps", duration=3.0, seed=5))
+    values = {**baseline_params(), **next(iter(effect.values()))}
+    prob = Problem(rec, values, 1e-3, 1e-2, np.ones(rec.n, bool))
+    fine = prob.free_run({})
+    coarse = prob.simulate({})
+    assert np.max(np.abs(coarse["y"] - fine["y"])) < 2e-6 and np.max(np.abs(coarse["u"] - fine["u"])) < 1e-5
+    same = replay(rec, problem.on_fit_steps(values))
+    assert np.array_equal(coarse["y"], same["y"]) and np.array_equal(coarse["u"], same["u"])
+
+
+def test_streamed_search_is_the_one_worker_search(prob):
+    """Screens judged as they end, with promising fits to convergence queued ahead of the waiting
+    screens (two workers), give the table of the one-worker search, entry for entry."""
+    current = {p: prob.base[p] for p in BASELINE.params}
+    hold = ~prob.mask
+    effects = ["amplifier_lag", "delay", "current_saturation", "periodic_disturbance"]
+    two = pipeline.search(prob, dict(current), effects, hold, 2, lambda s: None)
+    one = pipeline.search(prob, dict(current), effects, hold, 1, lambda s: None)
+    assert two.selected == one.selected and two.values == one.values
+    strip = lambda c: {k: v for k, v in c.items() if k != "cpu_s"}      # noqa: E731
+    assert [strip(c) for c in two.candidates] == [strip(c) for c in one.candidates]
