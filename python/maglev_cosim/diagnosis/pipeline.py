@@ -650,14 +650,18 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             flying: dict[Future, tuple[str, str]] = {}
             fitted: dict[str, dict] = {}
             k = 0
-            while todo or flying:
+
+            def launch() -> None:
                 while todo and (pool is None or len(flying) < workers):
                     kind, e, nfev, prep = todo.pop(0)
                     flying[run(_worker, (prob, current, e, nfev, prep))] = (kind, e)
+
+            while todo or flying:
+                launch()
                 ended, _ = wait(list(flying), return_when=FIRST_COMPLETED)
-                for fut in sorted(ended, key=lambda f: order.index(flying[f][1])):
-                    kind, e = flying.pop(fut)
-                    res = fut.result()
+                came = [(flying.pop(f), f.result()) for f in sorted(ended, key=lambda f: order.index(flying[f][1]))]
+                launch()           # the workers go on while the screens that ended are judged here
+                for (kind, e), res in came:
                     if kind == "fit":
                         fitted[e] = res
                         continue
