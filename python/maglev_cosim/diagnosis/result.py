@@ -242,7 +242,8 @@ class DiagnosisResult:
     checks: list[RecordCheck] = field(default_factory=list)
     reasons: list[str] = field(default_factory=list)
     written: list[Path] = field(default_factory=list)
-    #: The path's own keys of ``diagnosis.json`` (docs/diagnosis-json.md, "besides"), as its stages found them.
+    #: The path's own keys of ``diagnosis.json`` (docs/diagnosis-json.md, "besides"), as its stages found them
+    #: (a real rig's stage results typed, :mod:`.rig_result`: :func:`finite` writes their ``to_json``).
     extra: dict = field(default_factory=dict)
     #: The path's stage result (:class:`~.pipeline.Diagnosis` of a CE152 record), for its figures; not in the JSON.
     detail: Any = None
@@ -276,7 +277,10 @@ class DiagnosisResult:
 
 def finite(v):
     """JSON-safe: non-finite numbers become null (strict JSON has no NaN or Infinity); numpy
-    scalars and arrays become Python numbers and lists."""
+    scalars and arrays become Python numbers and lists; a typed result (a stage's dataclass with
+    ``to_json``, :mod:`.rig_result`) becomes its JSON."""
+    if hasattr(v, "to_json"):
+        return finite(v.to_json())
     if isinstance(v, dict):
         return {k: finite(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
@@ -330,17 +334,19 @@ def from_ce152(d, calibrated_fmu: CalibratedFmu | None, written: list[Path], com
 _RIG_TYPED = (*_CE152_TYPED, "calibrated_fmu", "written", "comparison", "reasons")
 
 
-def _skill(f: dict) -> dict[str, float | None]:
-    return {h: _num(p.get("skill_vs_stays_put")) for h, p in f["position"].items()}
+def _skill(f) -> dict[str, float | None]:
+    return {h: _num(p.skill_vs_stays_put) for h, p in f.position.items()}
 
 
-def _current(f: dict) -> float | None:
-    return _num((f.get("current") or {}).get("from_actuator"))
+def _current(f) -> float | None:
+    return _num((f.current or {}).get("from_actuator"))
 
 
 def from_rig(res: dict, sigma: dict[str, float] | None = None) -> DiagnosisResult:
     """The result of the real-rig path (:func:`~.real_rig.run`: prediction driven by the measured
-    actuator signal, calibration over several records, the black-box comparison)."""
+    actuator signal, calibration over several records, the black-box comparison), whose stages'
+    results are typed (:mod:`.rig_result`: each segment's figures a ``RigFigures``, the comparison a
+    ``RigComparison``, ...) and kept so in :attr:`DiagnosisResult.extra`."""
     segments = [SegmentFigures(s["label"], "calibration", _current(s["after"]), _skill(s["after"]))
                 for e in res["records"] for s in e["segments"]]
     segments += [SegmentFigures(v["label"], "validation", _current(v["after"]), _skill(v["after"]))
@@ -355,10 +361,11 @@ def from_rig(res: dict, sigma: dict[str, float] | None = None) -> DiagnosisResul
             check.loop_fits = {k: x["fit"] for k, x in cc["loops"].items()}
             check.closed_loop = [(x["gap_fit"], x["actuator_fit"]) for x in e["closed_loop"]]
         checks.append(check)
-    comparison = [Comparison(role, c["segments"],
-                             {h: HorizonSkill(*(_num(x[k]) for w in HorizonSkill.WHO for k in (w, f"{w}_worst")))
-                              for h, x in c.items() if h != "segments"})
-                  for role, c in (res.get("comparison") or {}).items()]
+    comp = res.get("comparison")
+    comparison = [Comparison(c.role, c.segments,
+                             {h: HorizonSkill(*(_num(getattr(x, k)) for w in HorizonSkill.WHO for k in (w, f"{w}_worst")))
+                              for h, x in c.horizons.items()})
+                  for c in (comp.roles if comp is not None else [])]
     fmu = res.get("calibrated_fmu")
     return DiagnosisResult(
         kind="rig", verdict=res["verdict"], fit=Fit.from_json(res.get("fit")),
