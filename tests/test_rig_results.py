@@ -15,8 +15,9 @@ import pytest
 from maglev_cosim.diagnosis import blackbox as bb
 from maglev_cosim.diagnosis import real_rig
 from maglev_cosim.diagnosis.result import DiagnosisResult, finite, from_rig
-from maglev_cosim.diagnosis.rig_result import (EffectTrial, RigCalibration, RigComparison, RigCorrection, RigDrift,
-                                               RigFigures, RigHorizon, RigSearch)
+from maglev_cosim.diagnosis.rig_result import (EffectTrial, RigCalibration, RigCoilCalibration, RigComparison,
+                                               RigCorrection, RigDrift, RigFigures, RigHorizon, RigRecordResult, RigRun,
+                                               RigSearch, RigSegment, RigValidationSegment)
 from maglev_cosim.rigs import load_rig
 
 from test_rigfit import NOISE, _record
@@ -44,11 +45,12 @@ def stages():
     without = real_rig.figures(rig, train, rig.params, NOISE)
     _, cal = real_rig.calibrate(rig, [train], rig.params, names=("k_e",), noise=NOISE, fit_noise=False,
                                 max_evaluations=3)
+    _, coil = real_rig.calibrate_coil(rig, [train], rig.params, names=("R_c",))
     search = real_rig.effect_search(rig, [train], rig.params, noise=NOISE, max_effects=1)
     co = real_rig.correction_search(rig, [train], rig.params, NOISE, max_nfev=1)
     comp = real_rig.comparison([without], [with_box])
     return {"figures": with_box, "figures_no_box": without, "calibration": cal, "search": search, "correction": co,
-            "comparison": comp}
+            "comparison": comp, "coil": coil}
 
 
 def _strict(d) -> str:
@@ -63,6 +65,16 @@ def test_each_stage_returns_its_dataclass(stages):
     assert isinstance(stages["search"], RigSearch) and all(isinstance(c, EffectTrial) for c in stages["search"].candidates)
     assert isinstance(stages["correction"], RigCorrection)
     assert isinstance(stages["comparison"], RigComparison)
+    assert isinstance(stages["coil"], RigCoilCalibration)
+
+
+def test_the_coil_calibration_json_keeps_the_keys_of_diagnosis_json(stages):
+    coil = stages["coil"]
+    d = coil.to_json()
+    assert list(d) == ["names", "values", "sigma", "fit", "on_bounds"]
+    assert d["names"] == ["R_c"] and list(d["fit"]) == ["model 31"] and d["fit"]["model 31"] > 80
+    assert d["values"]["R_c"] == coil.values["R_c"] and d["sigma"]["R_c"] > 0
+    assert json.loads(_strict(coil)) == json.loads(_strict(d))
 
 
 def test_the_figures_json_keeps_the_keys_of_diagnosis_json(stages):
@@ -166,18 +178,36 @@ def test_the_comparison_json_keeps_the_keys_of_diagnosis_json_and_reads_back(sta
     assert _strict(back) == _strict(comp) and "NaN" not in _strict(comp)
 
 
-def test_a_rig_result_with_typed_stages_writes_their_json(stages):
-    """from_rig keeps the typed stages in ``extra``; DiagnosisResult.to_json writes each as its to_json."""
+def test_a_run_writes_its_typed_stages_in_the_order_of_diagnosis_json(stages):
+    """from_rig keeps the typed stages in ``extra`` (RigRun.own_keys: the optional ones only where they ran,
+    in the file's order); DiagnosisResult.to_json writes each as its to_json."""
     f, comp = stages["figures"], stages["comparison"]
-    res = {"rig": "inteco-mls2em", "records": [{"label": "r", "segments": [{"label": f.label, "before": f, "after": f}],
-                                                "force_balance": None}],
-           "validation": [], "calibration": stages["calibration"], "effects": stages["search"],
-           "correction": stages["correction"], "comparison": comp, "verdict": "explained", "reasons": ["because"]}
-    r = from_rig(res)
+    seg = RigSegment(label=f.label, after=f, before=stages["figures_no_box"], own_coil={"R_c": 10.0},
+                     frequency_response=None)
+    val = RigValidationSegment(file="v.mat", label="v", after=f, warnings=["w"], before=f)
+    run = RigRun(rig="inteco-mls2em", rig_file="inteco.toml", fit_segments=1, horizons_s=[0.005, 0.02, 0.05],
+                 records=[RigRecordResult(file="r.mat", label="r", warnings=[], segments=[seg])], validation=[val],
+                 coil_calibration=stages["coil"], effects=stages["search"], correction=stages["correction"],
+                 calibration=stages["calibration"], disturbance_model={"q_force": 0.01}, black_box={},
+                 comparison=comp, verdict="explained", reasons=["because"], parameters={"k_e": 1.0},
+                 uncertainties={"k_e": 0.1}, written=["diagnosis.json"])
+    assert list(run.own_keys()) == ["rig", "rig_file", "records", "validation", "horizons_s", "coil_calibration",
+                                    "effects", "correction", "calibration", "disturbance_model", "black_box"]
+    r = from_rig(run)
     assert isinstance(r, DiagnosisResult) and r.extra["effects"] is stages["search"]
-    assert r.segments[0].skill["20 ms"] == f.position["20 ms"].skill_vs_stays_put
-    assert [c.role for c in r.comparison] == ["calibration", "validation"]
+    assert r.segments[0].skill["20 ms"] == f.position["20 ms"].skill_vs_stays_put and r.segments[1].role == "validation"
+    assert [c.role for c in r.comparison] == ["calibration", "validation"] and r.parameters["k_e"].sigma == 0.1
     d = json.loads(json.dumps(r.to_json(), allow_nan=False))
+    assert d == json.loads(json.dumps(run.to_json(), allow_nan=False))
+    assert list(d["records"][0]) == ["file", "label", "warnings", "segments", "force_balance"]
+    assert list(d["records"][0]["segments"][0]) == ["label", "before", "after", "own_coil", "frequency_response"]
     assert d["records"][0]["segments"][0]["after"] == json.loads(_strict(f))
-    for key in ("calibration", "effects", "correction", "comparison"):
-        assert d[key] == json.loads(_strict(res[key])), key
+    assert list(d["validation"][0]) == ["file", "label", "before", "after", "warnings", "force_balance_calibrated",
+                                        "own_coil"]
+    for key in ("coil_calibration", "calibration", "effects", "correction", "comparison"):
+        assert d[key] == json.loads(_strict(getattr(run, key))), key
+    # nothing calibrated: no coil stage, no black box, the calibration null
+    bare = RigRun(rig="x", rig_file="x.toml", verdict="too little information")
+    assert list(bare.own_keys()) == ["rig", "rig_file", "records", "validation", "horizons_s", "calibration",
+                                     "disturbance_model"]
+    assert json.loads(json.dumps(bare.to_json(), allow_nan=False))["calibration"] is None

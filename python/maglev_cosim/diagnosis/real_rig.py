@@ -52,9 +52,10 @@ from . import reaction
 from .effects import CATALOGUE, force_law
 from .metrics import nrmse_fit
 from .problem import Coord
-from .result import Comparison, HorizonSkill, finite
-from .rig_result import (EffectTrial, RigCalibration, RigComparison, RigCorrection, RigDrift, RigFigures, RigHorizon,
-                         RigSearch)
+from .result import (CalibratedFmu, Comparison, Fit, HorizonSkill, LocationEvidence, PredictionFit, RecordRef, Residual,
+                     finite)
+from .rig_result import (EffectTrial, RigCalibration, RigCoilCalibration, RigComparison, RigCorrection, RigDrift,
+                         RigFigures, RigHorizon, RigRecordResult, RigRun, RigSearch, RigSegment, RigValidationSegment)
 
 #: Prediction horizons of the position figures [s].
 HORIZONS_S = (0.005, 0.020, 0.050)
@@ -383,12 +384,12 @@ def _to_position(rig: Rig, y_pred: np.ndarray) -> np.ndarray:
 
 
 def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, *,
-                   names: Sequence[str] | None = None) -> tuple[PlantParams, dict]:
+                   names: Sequence[str] | None = None) -> tuple[PlantParams, RigCoilCalibration | None]:
     """The coil's parameters (default :data:`COIL` of the rig's drive) that make the current
     computed from the actuator signal alone (the filter never sees the measured current; the gap
     is tracked) fit the measured current: least squares on factors in [0.5, 2] (offsets ±1 V; the
     delay ``T_d`` within :data:`COIL_DELAY_BOUNDS`, the resistance's drift ``kappa_R`` within
-    :data:`COIL_DRIFT_BOUNDS`). Returns the parameters and a summary (``values``, ``sigma``: ±1σ from
+    :data:`COIL_DRIFT_BOUNDS`). Returns the parameters and a :class:`~.rig_result.RigCoilCalibration` (``values``, ``sigma``: ±1σ from
     the Jacobian, widened for the residual's correlation from sample to sample (an AR(1) count of
     independent samples), ``fit`` % per record, ``on_bounds``); with no measured current, the
     parameters unchanged and ``None``."""
@@ -445,10 +446,11 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
     sol = least_squares(fun, np.clip(z0, lo, hi), jac=jac, bounds=(lo, hi),
                         x_scale=np.where(delay, 0.5, 0.05), max_nfev=30)
     p = make(sol.x)
-    return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
-               "sigma": _coil_sigma(sol, names, base, additive, absolute),
-               "fit": {r.label: nrmse_fit(*reversed(c)) for r, c in zip(use, _map(lambda r: currents(p, r), use))},
-               "on_bounds": [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]}
+    return p, RigCoilCalibration(
+        names=list(names), values={n: float(getattr(p, n)) for n in names},
+        sigma=_coil_sigma(sol, names, base, additive, absolute),
+        fit={r.label: nrmse_fit(*reversed(c)) for r, c in zip(use, _map(lambda r: currents(p, r), use))},
+        on_bounds=[n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)])
 
 
 def _coil_sigma(sol, names: Sequence[str], base: np.ndarray, additive: np.ndarray, absolute: np.ndarray
@@ -1737,13 +1739,14 @@ def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams
 
 def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Sequence[Measured] = (),
         per_record: bool = True, progress=None, json_name: str = "diagnosis.json", controller=None,
-        effects: bool = True, second_force_lag: str | None = "default") -> dict:
+        effects: bool = True, second_force_lag: str | None = "default") -> RigRun:
     """The real-rig path's stages (:func:`maglev_cosim.diagnosis.diagnose` runs them): calibrates one
     parameter set on ``records`` (all their levitation segments), reports every record's figures
     before and after, each record's own calibration (the spread between records: drift is a
     finding), the fit on the ``validate`` records not used, the verdict, and writes ``report.md``,
-    ``report.html``, the plots and the calibrated FMU into ``out``; the result dict names
-    ``json_name`` among the files, which the caller writes (from the typed result). Every record is
+    ``report.html``, the plots and the calibrated FMU into ``out``; the result (a
+    :class:`~.rig_result.RigRun`) names ``json_name`` among the files, which the caller writes (from the typed
+    result). Every record is
     cut into segments and checked before anything is written. ``controller``: a declared controller
     (:class:`maglev_cosim.loop.controllers.ControllerFile`), checked against each record and replayed
     in closed loop (:func:`controller_check`, :func:`closed_loop_figures`). ``effects``: try the
@@ -1766,7 +1769,7 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
 
 def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Sequence[Measured], per_record: bool,
          progress, json_name: str, controller, effects: bool, second_force_lag: str | None,
-         background: ThreadPoolExecutor) -> dict:
+         background: ThreadPoolExecutor) -> RigRun:
     """:func:`run`'s stages (with one BLAS thread; ``background``: a thread for the work beside them)."""
     mode = SECOND_FORCE_LAG_FIT if second_force_lag == "default" else second_force_lag
     if mode not in (None, "joint", "after"):
@@ -1776,14 +1779,14 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
     held = [(m, prepare(rig, m)) for m in validate]
     segs = [r for _, rs in train for r in rs]
     out = Path(out)
-    result: dict = {"rig": rig.name, "rig_file": str(rig.path), "records": [], "validation": [],
-                    "horizons_s": list(HORIZONS_S)}
+    result = RigRun(rig=rig.name, rig_file=str(rig.path), horizons_s=list(HORIZONS_S))
     cal = None
     params = rig.params
     info = [information(rig, r) for r in segs]
     lacking = {id(r): why for r, why in zip(segs, info)}
     noise = noise_defaults(rig, params)
     fit_on = [r for r, why in zip(segs, info) if not why]
+    result.fit_segments = len(fit_on)
     mech = mechanics_names(params)
 
     def fit_black_box() -> dict:
@@ -1808,7 +1811,7 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         # disturbance model on the gap predicted 20 and 50 ms ahead
         say(f"calibrating the coil ({', '.join(COIL_FIT[rig.drive])}) on the current from the actuator signal")
         params, coil = calibrate_coil(rig, fit_on, params, names=COIL_FIT[rig.drive])
-        result["coil_calibration"] = coil
+        result.coil_calibration = coil
         say(f"calibrating {', '.join(mech)} and the disturbance model on {len(fit_on)} segment(s)")
         params, cal = calibrate(rig, fit_on, params, names=mech)
         noise = cal.noise
@@ -1817,7 +1820,7 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         second = tuple(SECOND_FORCE_LAG) if mode else ()
         # the second force lag is the catalogue's eddy_lag: never tried by the effect search when the
         # calibration fits it (RIG_LEFT_OUT leaves it out of the search in any case, for now)
-        search = result["effects"] = effect_search(rig, fit_on, params, say, noise=noise, skip=mech + ("T_d",) + second)
+        search = result.effects = effect_search(rig, fit_on, params, say, noise=noise, skip=mech + ("T_d",) + second)
         chosen = list(search.parameters)
         params = params.replace(**search.parameters, **search.computed)
         joint = second if mode == "joint" else ()
@@ -1834,9 +1837,9 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
             params, cal = calibrate(rig, fit_on, params, names=second, noise=noise)
             noise = cal.noise
         if second:
-            result["second_force_lag"] = {"mode": mode, "values": {n: cal.values[n] for n in second},
-                                          "sigma": {n: cal.sigma[n] for n in second},
-                                          "on_bounds": [n for n in cal.on_bounds if n in second]}
+            result.second_force_lag = {"mode": mode, "values": {n: cal.values[n] for n in second},
+                                       "sigma": {n: cal.sigma[n] for n in second},
+                                       "on_bounds": [n for n in cal.on_bounds if n in second]}
     own_models: dict = {}
     if cal is not None and effects:
         # where the catalogue explains too little: the located correction at the mechanics, a force
@@ -1844,12 +1847,12 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         # segment's own model (its coil and force gain) as its figures use it
         own_models = dict(zip(map(id, fit_on), _map(lambda r: _own_coil(rig, r, params, cal), fit_on)))
         say("trying the located correction at the mechanics (a force of gap and velocity) on the held-out blocks")
-        co = result["correction"] = correction_search(rig, fit_on, params, noise, say,
-                                                      own={k: v[0] for k, v in own_models.items()})
+        co = result.correction = correction_search(rig, fit_on, params, noise, say,
+                                                   own={k: v[0] for k, v in own_models.items()})
         if co.selected:
             noise = {**noise, "correction": co.correction}
-    result["calibration"] = cal
-    result["disturbance_model"] = {k: v for k, v in noise.items() if k != "correction"}
+    result.calibration = cal
+    result.disturbance_model = {k: v for k, v in noise.items() if k != "correction"}
     black_box = {}
     if fit_on:
         say(f"fitting the black-box baseline (direct ridge predictors at {', '.join(f'{h * 1e3:g}' for h in HORIZONS_S)}"
@@ -1857,32 +1860,31 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         try:
             black_box = black_box_job.result()
         except ValueError as e:
-            result["black_box_error"] = str(e)
-        result["black_box"] = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
-                                                    "features": len(p.coef)}
-                                  for hs, p in black_box.items() if not isinstance(hs, tuple)}
+            result.black_box_error = str(e)
+        result.black_box = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
+                                                 "features": len(p.coef)}
+                            for hs, p in black_box.items() if not isinstance(hs, tuple)}
 
-    def calibration_segment(r: RigRecord) -> dict:
+    def calibration_segment(r: RigRecord) -> RigSegment:
         say(f"figures of {r.label}")
         pr, own = own_models.get(id(r)) or _own_coil(rig, r, params, cal)
-        seg = {"label": r.label, "before": None, "after": figures(rig, r, pr, noise, black_box), "own_coil": own}
+        seg = RigSegment(label=r.label, after=figures(rig, r, pr, noise, black_box), own_coil=own)
         if per_record and cal and len(segs) > 1 and not lacking[id(r)]:
             # the force law's gain on this record alone (the rest held): its spread between
             # records is a finding, not noise
             gain = mech[0]
             _, own_info = calibrate(rig, [r], pr, names=(gain,), noise=noise, fit_noise=False, max_evaluations=15)
-            seg["own_calibration"] = {**(own or {}), gain: own_info.values[gain]}
+            seg.own_calibration = {**(own or {}), gain: own_info.values[gain]}
         frf = current_to_position(rig, r, params)
-        seg["frequency_response"] = frf.get("summary")
+        seg.frequency_response = frf.get("summary")
         return seg
 
-    def validation_segment(item: tuple[Measured, RigRecord, dict | None]) -> dict:
+    def validation_segment(item: tuple[Measured, RigRecord, dict | None]) -> RigValidationSegment:
         m, r, fb = item
         say(f"validation figures of {r.label}")
         pr, own = _own_coil(rig, r, params, cal)
-        return {"file": str(m.path), "label": r.label, "before": None,
-                "after": figures(rig, r, pr, noise, black_box), "warnings": m.warnings,
-                "force_balance_calibrated": fb, "own_coil": own}
+        return RigValidationSegment(file=str(m.path), label=r.label, after=figures(rig, r, pr, noise, black_box),
+                                    warnings=m.warnings, force_balance_calibrated=fb, own_coil=own)
 
     def job(w: tuple[str, object]):
         kind, x = w
@@ -1909,30 +1911,29 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
     n_seg = len(every_seg)
     again = iter(done[n_seg:])
     for d, f, t in zip(done[:n_seg], before_jobs, taken):
-        d["before"] = next(again) if t else f.result()
-    cal_segs, result["validation"] = done[: len(segs)], done[len(segs): n_seg]
+        d.before = next(again) if t else f.result()
+    cal_segs, result.validation = done[: len(segs)], done[len(segs): n_seg]
     figs_after = []
     k = 0
     for m, rs in train:
-        entry = {"file": str(m.path), "label": m.label, "warnings": m.warnings, "segments": [],
-                 "force_balance": force_balance(rig, m)}
+        entry = RigRecordResult(file=str(m.path), label=m.label, warnings=m.warnings, force_balance=force_balance(rig, m))
         if controller is not None:
             say(f"replaying the declared controller {controller.name} on {m.label}")
-            entry["controller_check"] = controller_check(rig, m, controller.controller)
-            entry["closed_loop"] = [closed_loop_figures(rig, r, m, params, controller.controller) for r in rs]
+            entry.controller_check = controller_check(rig, m, controller.controller)
+            entry.closed_loop = [closed_loop_figures(rig, r, m, params, controller.controller) for r in rs]
         for _ in rs:
             seg = cal_segs[k]
             k += 1
-            entry["segments"].append(seg)
-            figs_after.append(seg["after"])
-        result["records"].append(entry)
+            entry.segments.append(seg)
+            figs_after.append(seg.after)
+        result.records.append(entry)
     verdict, reasons = conclude(rig, figs_after, info, cal)
-    result["comparison"] = comparison(figs_after, [v["after"] for v in result["validation"]])
-    verdict, more = judge_against_black_box(verdict, result["comparison"])
+    result.comparison = comparison(figs_after, [v.after for v in result.validation])
+    verdict, more = judge_against_black_box(verdict, result.comparison)
     reasons += more
-    if verdict == "explained" and not ("effects" in result and result["effects"].selected):
+    if verdict == "explained" and not (result.effects and result.effects.selected):
         verdict = "no effect"   # the CE152 diagnosis's word: the calibrated model alone explains the record
-    every = figs_after + [v["after"] for v in result["validation"]]
+    every = figs_after + [v.after for v in result.validation]
     drifting = [f for f in every if f.drift is not None and f.drift.significant]
     if drifting:
         reasons.append(f"the random force the filter estimates drifts during the run in {len(drifting)} of {len(every)} "
@@ -1940,15 +1941,15 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
                        + "; ".join(f"{f.label} {f.drift.change_pct_weight:+.1f} ± "
                                    f"{f.drift.change_two_sigma:.1f}" for f in drifting)
                        + ": a force or a gain that changes during the run (drift.png)")
-    heating = [(x["label"], x["own_coil"]) for x in [s for e in result["records"] for s in e["segments"]]
-               + result["validation"] if (x.get("own_coil") or {}).get("kappa_R_sigma")]
+    heating = [(x.label, x.own_coil) for x in [*(s for e in result.records for s in e.segments), *result.validation]
+               if (x.own_coil or {}).get("kappa_R_sigma")]
     if heating:
         found = [(lb, c) for lb, c in heating if abs(c["kappa_R"]) > 2 * c["kappa_R_sigma"]]
         reasons.append(f"the coil resistance changes during the run beyond its 2σ in {len(found)} of {len(heating)} "
                        "segment(s) (kappa_R, each segment's own coil, %/s ± 2σ; its model uses it only beyond 2σ): "
                        + "; ".join(f"{lb} {100 * c['kappa_R']:+.3f} ± {200 * c['kappa_R_sigma']:.3f}" for lb, c in heating)
                        + ": the winding warming (copper: +0.39 %/K) or cooling")
-    held_skill = [v["after"].position["20 ms"].skill_vs_stays_put for v in result["validation"]]
+    held_skill = [v.after.position["20 ms"].skill_vs_stays_put for v in result.validation]
     held_skill = [k for k in held_skill if np.isfinite(k)]
     if held_skill and np.median(held_skill) < MIN_SKILL:
         reasons.append(f"the calibration does not carry over to the {len(held_skill)} validation segment(s): their gap "
@@ -1956,26 +1957,26 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
                        f"needed; best {max(held_skill):+.2f}, worst {min(held_skill):+.2f}): the verdict holds for the "
                        "calibration records only")
         own = [fb["median"] for fb in (force_balance(rig, m, params) for m, _ in train) if fb]
-        for v in result["validation"]:
-            k = v["after"].position["20 ms"].skill_vs_stays_put
+        for v in result.validation:
+            k = v.after.position["20 ms"].skill_vs_stays_put
             if not (np.isfinite(k) and k < MIN_SKILL):
                 continue
             why = []
-            fb = v["force_balance_calibrated"]
+            fb = v.force_balance_calibrated
             if fb and own and not min(own) - 0.02 <= fb["median"] <= max(own) + 0.02:
                 why.append(f"the calibrated force law carries {100 * fb['median']:.0f} % of the weight here against "
                            f"{100 * min(own):.0f}-{100 * max(own):.0f} % on the calibration records (the force gain "
                            "differs between runs)")
-            cur = v["after"].current
+            cur = v.after.current
             if cur and cur["from_actuator"] < MIN_CURRENT_FIT:
                 why.append(f"its coil current from the actuator signal fits only {cur['from_actuator']:.1f} %")
-            why += [w for w in v["warnings"] if "Kalman" in w]
+            why += [w for w in v.warnings if "Kalman" in w]
             if why:
-                reasons.append(f"{v['label']} (skill {k:+.2f}): " + "; ".join(why))
-    co = result.get("correction")
+                reasons.append(f"{v.label} (skill {k:+.2f}): " + "; ".join(why))
+    co = result.correction
     if co:
         reasons.append(correction_reason(co))
-    ef = result.get("effects")
+    ef = result.effects
     if ef:
         last = max(c.round for c in ef.candidates)
         tried = ", ".join(f"{c.effect} (off: no start gained {100 * REFINE_MIN_GAIN:g} %)" if c.screened is not None
@@ -1988,10 +1989,10 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
             reasons.append(("none of the remaining effects" if ef.selected else "no effect of the catalogue")
                            + f" explains enough on the held-out blocks: changes of the prediction cost (gap 20 and 50 ms, current 20 ms ahead) "
                            f"{tried} (at most −{100 * MIN_EFFECT_GAIN:.0f} % needed)")
-    for e in result["records"]:
-        fb = e["force_balance"]
+    for e in result.records:
+        fb = e.force_balance
         if fb and not fb["consistent"]:
-            reasons.append(f"{e['label']}: the rig file's force law carries {100 * fb['median']:.0f} % of the ball's "
+            reasons.append(f"{e.label}: the rig file's force law carries {100 * fb['median']:.0f} % of the ball's "
                            f"weight at the recorded gap and current (median over {fb['samples']} levitating samples; "
                            f"10-90 %: {100 * fb['p10']:.0f}-{100 * fb['p90']:.0f} %): its force constant, or the "
                            "record's current or position scale, contradicts the record"
@@ -2001,7 +2002,7 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         if ohm and not 0.7 <= ohm["median_V_over_Ri"] <= 1.4:
             both = (fb and not fb["consistent"]
                     and (ohm["median_V_over_Ri"] > 1) == (fb["current_scale_for_weight"] > 1))
-            reasons.append(f"{e['label']}: where the current settles, the rig file's coil voltage is "
+            reasons.append(f"{e.label}: where the current settles, the rig file's coil voltage is "
                            f"{ohm['median_V_over_Ri']:.2f}x R times the recorded current (median over {ohm['samples']} "
                            "samples; Ohm's law wants 1)"
                            + (f"; both checks find the recorded current too {'small' if ohm['median_V_over_Ri'] > 1 else 'large'} "
@@ -2009,113 +2010,112 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
                               f"{ohm['median_V_over_Ri']:.1f}x for Ohm's law): the record's current scale, or the rig "
                               "file's force constant and resistance, are wrong" if both else ""))
     if controller is not None:
-        result["controller"] = {"name": controller.name, "file": str(controller.path), "type": controller.kind}
-        for e in result["records"]:
-            cc = e["controller_check"]
+        result.controller = {"name": controller.name, "file": str(controller.path), "type": controller.kind}
+        for e in result.records:
+            cc = e.controller_check
             loops = [v["fit"] for v in cc["loops"].values()]
             best = max(cc["actuator_fit"], min(loops) if loops else -np.inf)
             if best >= MIN_CONTROLLER_FIT:
-                reasons.append(f"{e['label']}: the declared controller {controller.name} reproduces the recorded "
+                reasons.append(f"{e.label}: the declared controller {controller.name} reproduces the recorded "
                                f"actuator signal (fit {cc['actuator_fit']:.1f} % from {cc['start']}"
                                + "".join(f"; {k} {v['fit']:.1f} %" for k, v in cc["loops"].items()) + ")")
             else:
-                reasons.append(f"{e['label']}: the declared controller {controller.name} does not reproduce the "
+                reasons.append(f"{e.label}: the declared controller {controller.name} does not reproduce the "
                                f"recorded actuator signal (fit {cc['actuator_fit']:.1f} %, from rest or settled): the "
                                "declaration is not "
                                "the controller that ran; the figures above rest on the measured actuator signal "
                                "(the unknown-controller path) and do not depend on it")
-    result["verdict"], result["reasons"] = verdict, reasons
-    own = [s["own_calibration"] for e in result["records"] for s in e["segments"] if "own_calibration" in s]
-    coils = [x["own_coil"] for x in [s for e in result["records"] for s in e["segments"]] + result["validation"]
-             if x.get("own_coil")]
+    result.verdict, result.reasons = verdict, reasons
+    own = [s.own_calibration for e in result.records for s in e.segments if s.own_calibration is not None]
+    coils = [x.own_coil for x in [*(s for e in result.records for s in e.segments), *result.validation] if x.own_coil]
     if len(coils) > 1:
-        result["coil_drift"] = _spread(coils)
+        result.coil_drift = _spread(coils)
     if len(own) > 1:
-        result["spread"] = _spread(own)
-    result["parameters"] = {**{n: float(getattr(params, n)) for n in (*COIL_FIT[rig.drive], *mech)},
-                            **(result["effects"].parameters if "effects" in result else {}),
-                            **result.get("second_force_lag", {}).get("values", {})}
+        result.spread = _spread(own)
+    result.parameters = {**{n: float(getattr(params, n)) for n in (*COIL_FIT[rig.drive], *mech)},
+                         **(result.effects.parameters if result.effects else {}),
+                         **(result.second_force_lag or {}).get("values", {})}
     out.mkdir(parents=True, exist_ok=True)
     plots = (_plots(rig, segs[:1], params, out, noise, black_box,
-                    [*figs_after, *(v["after"] for v in result["validation"])]) if segs else [])
-    if result.get("correction") is not None:
-        plots.append(correction_plot(rig, result["correction"], params, out / "correction.png"))
-    result.update(_shared_keys(result, train, held))
+                    [*figs_after, *(v.after for v in result.validation)]) if segs else [])
+    if result.correction is not None:
+        plots.append(correction_plot(rig, result.correction, params, out / "correction.png"))
+    _shared_keys(result, train, held)
     written = [out / json_name, out / "report.md", out / "report.html", *plots]
     (out / "report.md").write_text(_markdown(result, plots))
     write_html(out / "report.md", out / "report.html")
     if verdict not in ("calibration failed", "too little information"):
         fmu_path = out / "maglev_calibrated.fmu"
-        result["calibrated_fmu"] = _calibrated_rig_fmu(rig, result, params, train, out, fmu_path)
+        result.calibrated_fmu = _calibrated_rig_fmu(rig, result, params, train, out, fmu_path)
         written.insert(3, fmu_path)
     else:
-        result["calibrated_fmu"] = None   # nothing calibrated worth an FMU: the verdict says why
-    result["written"] = [str(p) for p in written]
+        result.calibrated_fmu = None   # nothing calibrated worth an FMU: the verdict says why
+    result.written = [str(p) for p in written]
     return result
 
 
-def _shared_keys(result: dict, train, held) -> dict:
-    """The keys a real rig's result shares with the CE152 diagnosis (:data:`.result.SHARED_KEYS`), from
-    its own figures: ``fit`` and ``fit_before`` the median NRMSE fit % of the gap reading
+def _shared_keys(result: RigRun, train, held) -> None:
+    """Fills in the fields a real rig's result shares with the CE152 diagnosis (:data:`.result.SHARED_KEYS`),
+    from its own figures: ``fit`` and ``fit_before`` the median NRMSE fit % of the gap reading
     (``y``) and of the current (``current``) predicted 20 ms ahead, beside ``free_run: None``
     (an unknown controller is never run free: the plant is open-loop unstable); ``before`` and
     ``after`` the RMS of the 20 ms prediction error of the reading [MU]; ``location_evidence``
     the best held-out cost change per location among the catalogue's effects."""
-    segs = [s for e in result["records"] for s in e["segments"]]
+    segs = [s for e in result.records for s in e.segments]
 
-    def fit(key: str) -> dict:
-        y = [s[key].position["20 ms"].model for s in segs]
-        cur = [s[key].current["20 ms"] for s in segs if s[key].current]
-        return {"free_run": None, "prediction": {"horizon_s": 0.020, "y": float(np.median(y)) if y else None,
-                                                 "current": float(np.median(cur)) if cur else None}}
+    def fit(key: str) -> Fit:
+        figs = [getattr(s, key) for s in segs]
+        y = [f.position["20 ms"].model for f in figs]
+        cur = [f.current["20 ms"] for f in figs if f.current]
+        return Fit(None, PredictionFit(0.020, float(np.median(y)) if y else None,
+                                       float(np.median(cur)) if cur else None, "current"))
 
-    def rms(key: str) -> dict:
-        v = [s[key].position["20 ms"].rms_y for s in segs]
+    def rms(key: str) -> Residual:
+        v = [getattr(s, key).position["20 ms"].rms_y for s in segs]
         v = [x for x in v if x is not None]
-        return {"rms_y": float(np.sqrt(np.mean(np.square(v)))) if v else None, "horizon_s": 0.020}
+        return Residual(float(np.sqrt(np.mean(np.square(v)))) if v else None, horizon_s=0.020)
 
-    evidence: dict = {}
-    search = result.get("effects")
+    evidence: dict[str, LocationEvidence] = {}
+    search = result.effects
     for c in search.candidates if search else []:
-        loc = c.location
         change = -c.held_out_gain
-        if loc not in evidence or change < evidence[loc]["held_out_cost_change"]:
-            evidence[loc] = {"effect": c.effect, "held_out_cost_change": float(change)}
-    warnings = sorted({w for m, _ in [*train, *held] for w in m.warnings})
-    return {"fit": fit("after") if segs else None, "fit_before": fit("before") if segs else None,
-            "warnings": warnings, "selected": list(search.selected if search else []),
-            "uncertainties": result["calibration"].sigma if result.get("calibration") else {},
-            "before": rms("before") if segs else None, "after": rms("after") if segs else None,
-            "location_evidence": evidence}
+        if c.location not in evidence or change < evidence[c.location].held_out_cost_change:
+            evidence[c.location] = LocationEvidence(c.location, c.effect, float(change))
+    result.warnings = sorted({w for m, _ in [*train, *held] for w in m.warnings})
+    result.fit, result.fit_before = (fit("after"), fit("before")) if segs else (None, None)
+    result.selected = list(search.selected if search else [])
+    result.uncertainties = result.calibration.sigma if result.calibration else {}
+    result.before, result.after = (rms("before"), rms("after")) if segs else (None, None)
+    result.location_evidence = list(evidence.values())
 
 
-def _calibrated_rig_fmu(rig: Rig, result: dict, params: PlantParams, train, out: Path, path: Path) -> dict:
+def _calibrated_rig_fmu(rig: Rig, result: RigRun, params: PlantParams, train, out: Path, path: Path) -> CalibratedFmu:
     """The rig's FMU with the calibrated parameters as start values, with its provenance in
     ``resources/calibration.json`` (records and their sha256, parameters with units and σ, the
     verdict, the comparison with the black box) and the report as ``documentation/``."""
     units = {n: u for n, (_, _, _, u) in fast.param_table().items()}
-    sigma = result.get("uncertainties", {})
+    sigma = result.uncertainties
     provenance = {
         "format": "maglev-cosim calibration 1",
         "rig": rig.name,
         "records": [{"file": Path(m.path).name, "sha256": hashlib.sha256(Path(m.path).read_bytes()).hexdigest()}
                     for m, _ in train],
-        "verdict": result["verdict"],
-        "effects": result["selected"],
+        "verdict": result.verdict,
+        "effects": result.selected,
         "parameters": {n: {"value": float(v), "unit": units.get(n), **({"sigma": sigma[n]} if n in sigma else {})}
-                       for n, v in result["parameters"].items()},
-        "disturbance_model": result.get("disturbance_model"),
-        "comparison": result.get("comparison"),
+                       for n, v in result.parameters.items()},
+        "disturbance_model": result.disturbance_model,
+        "comparison": result.comparison,
     }
     docs = {"index.html": (out / "report.html").read_bytes(), "report.md": (out / "report.md").read_bytes()}
     calibrated_fmu(ensure_fmu(None), path, params.to_start_values(),
                    resources={"rig.toml": rig.path.read_bytes(),
                               "calibration.json": (json.dumps(finite(provenance), indent=2) + "\n").encode()},
                    description=f"{rig.description}, calibrated on {', '.join(r['file'] for r in provenance['records'])} "
-                               f"(maglev-cosim; verdict {result['verdict']}; resources/calibration.json)",
+                               f"(maglev-cosim; verdict {result.verdict}; resources/calibration.json)",
                    model_name=f"{rig.name} magnetic levitation, calibrated", documentation=docs,
                    source_sha256=hashlib.sha256("".join(r["sha256"] for r in provenance["records"]).encode()).hexdigest())
-    return {"file": str(path), "records": provenance["records"]}
+    return CalibratedFmu(str(path), [RecordRef(r["file"], r.get("sha256")) for r in provenance["records"]])
 
 
 def _spread(values: Sequence[dict]) -> dict:
@@ -2132,7 +2132,8 @@ def _spread(values: Sequence[dict]) -> dict:
     return out
 
 
-def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> tuple[PlantParams, dict | None]:
+def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: RigCalibration | None
+              ) -> tuple[PlantParams, dict[str, float] | None]:
     """The model of one segment with its own coil (:func:`calibrate_coil` on the segment alone: a
     resistance that differs between runs and warms during the run, ``kappa_R``, used only where its
     estimate lies beyond its 2σ of 0, a drive gain that differs between runs) and its own force gain
@@ -2142,15 +2143,15 @@ def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> 
     if cal is None or r.current is None:
         return params, None
     p, info = calibrate_coil(rig, [r], params)
-    values = dict((info or {}).get("values") or {})
+    values = dict(info.values) if info else {}
     if "kappa_R" in values:   # the heating's drift is a finding: with its ±1σ
-        sigma = float(info["sigma"]["kappa_R"])
+        sigma = float(info.sigma["kappa_R"])
         if not abs(values["kappa_R"]) > 2 * sigma:
             # within its 2σ of none: the segment's model goes without it (the rest refitted so), the
             # estimate is still reported
             p, info = calibrate_coil(rig, [r], params.replace(kappa_R=0.0),
                                      names=[n for n in COIL[rig.drive] if n != "kappa_R"])
-            values = {**values, **info["values"]}
+            values = {**values, **info.values}
         values["kappa_R_sigma"] = sigma
     gain = mechanics_names(p)[0]
     factor = own_force_gain(rig, r, p)
@@ -2193,11 +2194,11 @@ def _row(label: str, f: RigFigures) -> str:
     return "| " + " | ".join(cells) + " |"
 
 
-def _markdown(res: dict, plots: list[Path]) -> str:
+def _markdown(res: RigRun, plots: list[Path]) -> str:
     head = ("| segment | current from actuator, fit % | gap 5 ms: model / stays put / const. velocity (skill; black box's) "
             "| 20 ms | 50 ms | current 20 ms ahead, fit % |\n|---|---|---|---|---|---|")
-    lines = [f"# Rig {res['rig']}: measured records", "", f"**Verdict: {res['verdict']}**", ""]
-    lines += [f"- {r}" for r in res["reasons"]]
+    lines = [f"# Rig {res.rig}: measured records", "", f"**Verdict: {res.verdict}**", ""]
+    lines += [f"- {r}" for r in res.reasons]
     lines += ["", "Fits are NRMSE fit % (MATLAB `compare`); the gap is predicted by the prediction-error replay "
               "in closed loop with a controller identified from the record (a linear map from the gap, the "
               "reference, the current and its own past to the actuator signal, fitted on the other half of the "
@@ -2205,7 +2206,7 @@ def _markdown(res: dict, plots: list[Path]) -> str:
               "model's error: docs/diagnosis.md, 'A controller nobody states'), and driven by the measured "
               "actuator signal alone; skill = 1 − ‖error of the model‖/‖error of 'stays put'‖ (> 0: the model "
               "beats the naive predictor).", ""]
-    comp = res.get("comparison")
+    comp = res.comparison
     if comp is not None and any(c.horizons for c in comp.roles):    # each horizon's row has the black box's figures
         lines += ["## The model against the black-box baseline", "",
                   "Median skill against 'stays put' (worst in brackets) of the gap predicted ahead: the model (the "
@@ -2217,7 +2218,7 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                   "> 0 beats 'stays put'.", "",
                   *comparison_table(comp)]
         lines.append("")
-    cal = res.get("calibration")
+    cal = res.calibration
     if cal:
         units = {n: u for n, (_, _, _, u) in param_table().items()}
         lines += ["## Calibration", "", "| parameter | unit | rig file | calibrated |", "|---|---|---|---|"]
@@ -2230,12 +2231,12 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                       f"{nz['r_sensor']:.3g} MU RMS, current noise {nz['r_current'] * 1e3:.3g} mA RMS."]
         lines += ["", f"Cost {cal.cost_before:.4g} → {cal.cost_after:.4g} in {cal.evaluations} evaluations "
                   f"(prediction errors {', '.join(f'{h * 1e3:g}' for h in cal.horizons_s)} ms ahead)."]
-        coil = res.get("coil_calibration")
+        coil = res.coil_calibration
         if coil:
             lines += ["", "The coil was calibrated first, on the current computed from the actuator signal alone: "
-                      + ", ".join(f"`{n}` = {v:.5g} {units.get(n, '')}" for n, v in coil["values"].items()) + "."]
-        rows = [(s["label"], s.get("own_coil")) for e in res["records"] for s in e["segments"]]
-        rows += [(v["label"], v.get("own_coil")) for v in res["validation"]]
+                      + ", ".join(f"`{n}` = {v:.5g} {units.get(n, '')}" for n, v in coil.values.items()) + "."]
+        rows = [(s.label, s.own_coil) for e in res.records for s in e.segments]
+        rows += [(v.label, v.own_coil) for v in res.validation]
         rows = [(lb, c) for lb, c in rows if c]
         if rows:
             names = list(rows[0][1])
@@ -2244,14 +2245,14 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                       "| segment | " + " | ".join(f"{n} [{units.get(n, '')}]" for n in names) + " |",
                       "|---|" + "---|" * len(names)]
             lines += [f"| {lb} | " + " | ".join(f"{c[n]:.5g}" for n in names) + " |" for lb, c in rows]
-        if res.get("spread"):
+        if res.spread:
             lines += ["", "Each record calibrated on its own (the spread between records):", "",
                       "| parameter | min | max | spread (max − min)/mean |", "|---|---|---|---|"]
             lines += [f"| {n} | {s['min']:.6g} | {s['max']:.6g} | "
                       + (f"{s['relative']:.3g} {units.get(n, '')} (max − min) |" if n in ("u_0", "kappa_R")
-                         else f"{100 * s['relative']:.1f} % |") for n, s in res["spread"].items()]
+                         else f"{100 * s['relative']:.1f} % |") for n, s in res.spread.items()]
         lines.append("")
-    ef = res.get("effects")
+    ef = res.effects
     if ef:
         lines += ["## Effects of the catalogue on the calibrated model", "",
                   f"Each fitted on the even {ef.block_s:g} s blocks, judged on the odd ones: the change of the "
@@ -2272,7 +2273,7 @@ def _markdown(res: dict, plots: list[Path]) -> str:
             lines += ["Not offered on this rig: " + "; ".join(f"{n} ({why})" for n, why in missing.items()) + ".", ""]
         if ef.skipped:
             lines += [f"Not tried, the calibration fits their parameters: {', '.join(ef.skipped)}.", ""]
-    co = res.get("correction")
+    co = res.correction
     if co:
         s = co.summary
         lines += ["## The located correction at the mechanics", "",
@@ -2293,41 +2294,41 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                   "friction. " + s.get("answer", ""), ""]
     for title, key in (("Before calibration (the rig file's values)", "before"), ("After calibration", "after")):
         lines += [f"## {title}", "", head]
-        lines += [_row(s["label"], s[key]) for e in res["records"] for s in e["segments"]]
+        lines += [_row(s.label, getattr(s, key)) for e in res.records for s in e.segments]
         lines.append("")
-    if res["validation"]:
+    if res.validation:
         lines += ["## Validation on records not used for calibration", "", head]
-        lines += [_row(v["label"], v["after"]) for v in res["validation"]]
+        lines += [_row(v.label, v.after) for v in res.validation]
         lines.append("")
-    fr = [s["frequency_response"] for e in res["records"] for s in e["segments"] if s.get("frequency_response")]
+    fr = [s.frequency_response for e in res.records for s in e.segments if s.frequency_response]
     if fr:
         lines += ["## Current to gap: measured against the model (1–20 Hz)", "",
                   "| segment | mean coherence | gain measured/model | phase difference [deg] |", "|---|---|---|---|"]
-        lines += [f"| {s['label']} | {s['frequency_response']['mean_coherence']:.2f} | "
-                  f"{s['frequency_response']['gain_ratio_measured_over_model']:.2f} | "
-                  f"{s['frequency_response']['phase_difference_deg']:+.0f} |"
-                  for e in res["records"] for s in e["segments"] if s.get("frequency_response")]
+        lines += [f"| {s.label} | {s.frequency_response['mean_coherence']:.2f} | "
+                  f"{s.frequency_response['gain_ratio_measured_over_model']:.2f} | "
+                  f"{s.frequency_response['phase_difference_deg']:+.0f} |"
+                  for e in res.records for s in e.segments if s.frequency_response]
         lines.append("")
-    fbs = [(e["label"], e["force_balance"]) for e in res["records"] if e.get("force_balance")]
+    fbs = [(e.label, e.force_balance) for e in res.records if e.force_balance]
     if fbs:
         lines += ["## Force balance: the share of the weight the force law carries at the measured gap and current",
                   "", "| record | 10 % | median | 90 % | levitating samples |", "|---|---|---|---|---|"]
         lines += [f"| {lab} | {100 * f['p10']:.0f} % | {100 * f['median']:.0f} % | {100 * f['p90']:.0f} % | "
                   f"{f['samples']} |" for lab, f in fbs]
         lines.append("")
-    if res.get("controller"):
-        c = res["controller"]
+    if res.controller:
+        c = res.controller
         lines += [f"## The declared controller: {c['name']} ({c['type']})", "",
                   "Replayed alone on each record's measured signals, against the recorded actuator signal "
                   "(and loop by loop, when the record holds the current reference); then in closed loop with "
                   "the calibrated model, 20 ms ahead from every sample.", "",
                   "| record | actuator fit % | per loop | closed loop 20 ms: gap fit % / actuator fit % |",
                   "|---|---|---|---|"]
-        for e in res["records"]:
-            cc = e.get("controller_check", {})
+        for e in res.records:
+            cc = e.controller_check or {}
             loops = "; ".join(f"{k}: {v['fit']:.1f} %" for k, v in cc.get("loops", {}).items()) or "-"
-            cl = ", ".join(f"{x['gap_fit']:.1f} / {x['actuator_fit']:.1f}" for x in e.get("closed_loop", [])) or "-"
-            lines.append(f"| {e['label']} | {cc.get('actuator_fit', float('nan')):.1f} | {loops} | {cl} |")
+            cl = ", ".join(f"{x['gap_fit']:.1f} / {x['actuator_fit']:.1f}" for x in e.closed_loop or []) or "-"
+            lines.append(f"| {e.label} | {cc.get('actuator_fit', float('nan')):.1f} | {loops} | {cl} |")
         lines.append("")
     lines += [f"![{p.stem}]({p.name})" for p in plots]
     return "\n".join(lines) + "\n"

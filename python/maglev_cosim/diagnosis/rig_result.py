@@ -7,7 +7,12 @@ part of ``diagnosis.json`` (docs/diagnosis-json.md, "A real rig's keys besides")
   of one segment;
 - :class:`RigSearch` (with an :class:`EffectTrial` per candidate tried): :func:`~.real_rig.effect_search`;
 - :class:`RigCorrection`: :func:`~.real_rig.correction_search` (the located correction at the mechanics);
-- :class:`RigComparison`: :func:`~.real_rig.comparison` (model / black box / naive per role and horizon).
+- :class:`RigComparison`: :func:`~.real_rig.comparison` (model / black box / naive per role and horizon);
+- :class:`RigCoilCalibration`: :func:`~.real_rig.calibrate_coil` (the coil on the current computed from the
+  actuator signal);
+- :class:`RigRun`: :func:`~.real_rig.run`, every stage of the path, with a :class:`RigRecordResult` per
+  calibration record (its :class:`RigSegment` each) and a :class:`RigValidationSegment` per validation
+  segment; :func:`~.result.from_rig` makes the :class:`~.result.DiagnosisResult` of it.
 
 ``to_json()`` gives the stage's keys and values as they are written (non-finite numbers kept: the
 diagnosis's :func:`~.result.finite` makes them ``null``), in the file's order.
@@ -18,7 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from .result import Comparison, HorizonSkill, Json
+from .result import CalibratedFmu, Comparison, Fit, HorizonSkill, Json, LocationEvidence, Residual, from_rig
 
 
 @dataclass
@@ -400,3 +405,272 @@ class RigComparison:
                                {h: HorizonSkill(**{k: x.get(k) for w in HorizonSkill.WHO for k in (w, f"{w}_worst")})
                                 for h, x in c.items() if h != "segments"})
                     for role, c in (d or {}).items()])
+
+
+@dataclass
+class RigCoilCalibration:
+    """What :func:`~.real_rig.calibrate_coil` found: the coil's parameters that make the current computed
+    from the actuator signal alone fit the measured current.
+
+    Attributes
+    ----------
+    names : list of str
+        The fitted parameters (FMU variable names).
+    values : dict of str to float
+        Their fitted values [SI].
+    sigma : dict of str to float
+        Their ±1σ [SI] (widened for the residual's correlation from sample to sample).
+    fit : dict of str to float
+        NRMSE fit [%] of the current from the actuator signal, per segment label.
+    on_bounds : list of str
+        Parameters that ended on a bound of their search.
+    """
+
+    names: list[str]
+    values: dict[str, float]
+    sigma: dict[str, float]
+    fit: dict[str, float]
+    on_bounds: list[str]
+
+    def to_json(self) -> Json:
+        return {"names": list(self.names), "values": dict(self.values), "sigma": dict(self.sigma),
+                "fit": dict(self.fit), "on_bounds": list(self.on_bounds)}
+
+
+@dataclass
+class RigSegment:
+    """One levitation segment of a calibration record (:func:`~.real_rig.run`).
+
+    Attributes
+    ----------
+    label : str
+        The segment.
+    after : RigFigures
+        Its figures with the calibrated model (its own coil and force gain).
+    before : RigFigures or None
+        Its figures with the rig file's values.
+    own_coil : dict of str to float or None
+        The coil fitted on this segment alone [SI] (and ``kappa_R_sigma``, ``force_gain_factor``
+        where found); None without a calibration or a measured current.
+    own_calibration : dict of str to float or None
+        Its own coil and the force law's gain calibrated on it alone [SI] (several records only).
+    frequency_response : dict or None
+        The measured current-to-gap response against the model's on 1–20 Hz
+        (:func:`~.real_rig.current_to_position`'s ``summary``); None without a measured current.
+    """
+
+    label: str
+    after: RigFigures
+    before: RigFigures | None = None
+    own_coil: dict[str, float] | None = None
+    own_calibration: dict[str, float] | None = None
+    frequency_response: dict[str, Any] | None = None
+
+    def to_json(self) -> Json:
+        out: Json = {"label": self.label, "before": self.before.to_json() if self.before else None,
+                     "after": self.after.to_json(), "own_coil": self.own_coil}
+        if self.own_calibration is not None:
+            out["own_calibration"] = self.own_calibration
+        out["frequency_response"] = self.frequency_response
+        return out
+
+
+@dataclass
+class RigValidationSegment:
+    """One levitation segment of a validation record (not used to calibrate; :func:`~.real_rig.run`).
+
+    Attributes
+    ----------
+    file : str
+        The record's file.
+    label : str
+        The segment.
+    after : RigFigures
+        Its figures with the calibrated model (its own coil).
+    warnings : list of str
+        The record's warnings.
+    force_balance_calibrated : dict or None
+        The share of the weight the calibrated force law carries at the record's gap and current
+        (:func:`~.real_rig.force_balance`).
+    own_coil : dict of str to float or None
+        The coil fitted on this segment alone [SI].
+    before : RigFigures or None
+        Its figures with the rig file's values.
+    """
+
+    file: str
+    label: str
+    after: RigFigures
+    warnings: list[str]
+    force_balance_calibrated: dict[str, Any] | None = None
+    own_coil: dict[str, float] | None = None
+    before: RigFigures | None = None
+
+    def to_json(self) -> Json:
+        return {"file": self.file, "label": self.label, "before": self.before.to_json() if self.before else None,
+                "after": self.after.to_json(), "warnings": list(self.warnings),
+                "force_balance_calibrated": self.force_balance_calibrated, "own_coil": self.own_coil}
+
+
+@dataclass
+class RigRecordResult:
+    """One calibration record (:func:`~.real_rig.run`).
+
+    Attributes
+    ----------
+    file : str
+        Its file.
+    label : str
+        Its label.
+    warnings : list of str
+        The reader's warnings.
+    segments : list of RigSegment
+        Its levitation segments.
+    force_balance : dict or None
+        The share of the weight the rig file's force law carries at the measured gap and current
+        (:func:`~.real_rig.force_balance`: percentiles ``p10``, ``median``, ``p90`` [1], ...).
+    controller_check : dict or None
+        The declared controller replayed on the record (:func:`~.real_rig.controller_check`); None
+        without one.
+    closed_loop : list of dict or None
+        The declared controller in closed loop with the model, per segment
+        (:func:`~.real_rig.closed_loop_figures`); None without one.
+    """
+
+    file: str
+    label: str
+    warnings: list[str]
+    segments: list[RigSegment] = field(default_factory=list)
+    force_balance: dict[str, Any] | None = None
+    controller_check: dict[str, Any] | None = None
+    closed_loop: list[dict[str, Any]] | None = None
+
+    def to_json(self) -> Json:
+        out: Json = {"file": self.file, "label": self.label, "warnings": list(self.warnings),
+                     "segments": [s.to_json() for s in self.segments], "force_balance": self.force_balance}
+        if self.controller_check is not None:
+            out["controller_check"] = self.controller_check
+            out["closed_loop"] = list(self.closed_loop or [])
+        return out
+
+
+@dataclass
+class RigRun:
+    """Every stage of the real-rig path (:func:`~.real_rig.run`); :func:`~.result.from_rig` makes the
+    :class:`~.result.DiagnosisResult` of it. Optional stages are None where they did not run.
+
+    Attributes
+    ----------
+    rig, rig_file : str
+        The rig's name and its rig file.
+    fit_segments : int
+        Segments with enough information to calibrate on (0: nothing calibrated; not in the JSON).
+    records : list of RigRecordResult
+        The calibration records.
+    validation : list of RigValidationSegment
+        The validation records' segments.
+    horizons_s : list of float
+        The figures' prediction horizons [s].
+    coil_calibration : RigCoilCalibration or None
+        The coil stage (None: no measured current).
+    effects : RigSearch or None
+        The effect search.
+    second_force_lag : dict or None
+        The second force lag's fit (``mode``, ``values``, ``sigma``, ``on_bounds``), when fitted.
+    correction : RigCorrection or None
+        The located correction at the mechanics.
+    calibration : RigCalibration or None
+        The last calibration of the force law, the mechanics and the disturbance model.
+    disturbance_model : dict of str to float
+        The filter's disturbance model: ``q_force`` [N], ``f_force`` [Hz], ``r_sensor`` [MU],
+        ``r_current`` [A].
+    black_box_error : str or None
+        Why the black box could not be fitted.
+    black_box : dict or None
+        The black box's ridge weight, samples and features per horizon.
+    comparison : RigComparison or None
+        Model / black box / naive per role and horizon.
+    controller : dict or None
+        The declared controller (``name``, ``file``, ``type``).
+    verdict : str
+        The verdict.
+    reasons : list of str
+        Its reasons.
+    coil_drift, spread : dict or None
+        Each segment's own coil's, and each record's own force gain's, spread between them.
+    parameters : dict of str to float
+        The final model's calibrated parameters [SI].
+    fit, fit_before : Fit or None
+        NRMSE fit [%] of the gap and the current 20 ms ahead, after and before the calibration (median).
+    warnings : list of str
+        The records' warnings.
+    selected : list of str
+        The selected effects.
+    uncertainties : dict of str to float
+        ±1σ of the calibrated parameters [SI].
+    before, after : Residual or None
+        RMS of the 20 ms prediction error of the reading [MU], before and after.
+    location_evidence : list of LocationEvidence
+        The best held-out cost change per location among the effects tried.
+    calibrated_fmu : CalibratedFmu or None
+        The calibrated FMU written (None: nothing calibrated worth one).
+    written : list of str
+        The files written (``diagnosis.json`` named first, written by the caller).
+    """
+
+    rig: str
+    rig_file: str
+    fit_segments: int = 0
+    records: list[RigRecordResult] = field(default_factory=list)
+    validation: list[RigValidationSegment] = field(default_factory=list)
+    horizons_s: list[float] = field(default_factory=list)
+    coil_calibration: RigCoilCalibration | None = None
+    effects: RigSearch | None = None
+    second_force_lag: dict[str, Any] | None = None
+    correction: RigCorrection | None = None
+    calibration: RigCalibration | None = None
+    disturbance_model: dict[str, float] = field(default_factory=dict)
+    black_box_error: str | None = None
+    black_box: dict[str, dict[str, float]] | None = None
+    comparison: RigComparison | None = None
+    controller: dict[str, str] | None = None
+    verdict: str = ""
+    reasons: list[str] = field(default_factory=list)
+    coil_drift: dict[str, dict[str, float]] | None = None
+    spread: dict[str, dict[str, float]] | None = None
+    parameters: dict[str, float] = field(default_factory=dict)
+    fit: Fit | None = None
+    fit_before: Fit | None = None
+    warnings: list[str] = field(default_factory=list)
+    selected: list[str] = field(default_factory=list)
+    uncertainties: dict[str, float] = field(default_factory=dict)
+    before: Residual | None = None
+    after: Residual | None = None
+    location_evidence: list[LocationEvidence] = field(default_factory=list)
+    calibrated_fmu: CalibratedFmu | None = None
+    written: list[str] = field(default_factory=list)
+
+    def own_keys(self) -> dict[str, Any]:
+        """The path's own keys of ``diagnosis.json`` (those :class:`~.result.DiagnosisResult` does not
+        type), in the file's order, each as its stage's typed result."""
+        out: dict[str, Any] = {"rig": self.rig, "rig_file": self.rig_file, "records": self.records,
+                               "validation": self.validation, "horizons_s": self.horizons_s}
+        if self.fit_segments:
+            out["coil_calibration"] = self.coil_calibration
+        for key in ("effects", "second_force_lag", "correction"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        out["calibration"] = self.calibration
+        out["disturbance_model"] = self.disturbance_model
+        if self.black_box_error is not None:
+            out["black_box_error"] = self.black_box_error
+        if self.fit_segments:
+            out["black_box"] = self.black_box
+        for key in ("controller", "coil_drift", "spread"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        return out
+
+    def to_json(self) -> Json:
+        """``diagnosis.json`` of the run (:meth:`~.result.DiagnosisResult.to_json` of :func:`~.result.from_rig`)."""
+        return from_rig(self).to_json()
