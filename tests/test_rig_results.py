@@ -15,9 +15,10 @@ import pytest
 from maglev_cosim.diagnosis import blackbox as bb
 from maglev_cosim.diagnosis import real_rig
 from maglev_cosim.diagnosis.result import DiagnosisResult, finite, from_rig
-from maglev_cosim.diagnosis.rig_result import (EffectTrial, RigCalibration, RigCoilCalibration, RigComparison,
-                                               RigCorrection, RigDrift, RigFigures, RigHorizon, RigRecordResult, RigRun,
-                                               RigSearch, RigSegment, RigValidationSegment)
+from maglev_cosim.diagnosis.rig_result import (ClosedLoopFigures, ControllerCheck, EffectTrial, RigCalibration,
+                                               RigCoilCalibration, RigComparison, RigCorrection, RigDrift, RigFigures,
+                                               RigForceBalance, RigHorizon, RigRecordResult, RigRun, RigSearch,
+                                               RigSegment, RigValidationSegment)
 from maglev_cosim.rigs import load_rig
 
 from test_rigfit import NOISE, _record
@@ -184,22 +185,40 @@ def test_a_run_writes_its_typed_stages_in_the_order_of_diagnosis_json(stages):
     f, comp = stages["figures"], stages["comparison"]
     seg = RigSegment(label=f.label, after=f, before=stages["figures_no_box"], own_coil={"R_c": 10.0},
                      frequency_response=None)
-    val = RigValidationSegment(file="v.mat", label="v", after=f, warnings=["w"], before=f)
+    val = RigValidationSegment(file="v.mat", label="v", after=f, warnings=["w"], before=f,
+                               force_balance_calibrated=RigForceBalance(0.9, 1.0, 1.1, 500, True, 1.0))
+    fb = RigForceBalance(0.2, 0.25, 0.3, 1000, False, 2.0, ohm={"median_V_over_Ri": 2.1, "samples": 40})
+    cc = ControllerCheck(actuator_fit=93.0, start="rest", fits_by_start={"settled": 80.0, "rest": 93.0},
+                         loops={"current -> actuator": {"fit": 97.0, "rms_input_units": 0.05}})
+    record = RigRecordResult(file="r.mat", label="r", warnings=[], segments=[seg], force_balance=fb, controller_check=cc,
+                             closed_loop=[ClosedLoopFigures(label=f.label, horizon_s=0.02, gap_fit=95.0, actuator_fit=60.0)])
     run = RigRun(rig="inteco-mls2em", rig_file="inteco.toml", fit_segments=1, horizons_s=[0.005, 0.02, 0.05],
-                 records=[RigRecordResult(file="r.mat", label="r", warnings=[], segments=[seg])], validation=[val],
+                 records=[record], validation=[val], controller={"name": "c", "file": "c.toml", "type": "cascade"},
                  coil_calibration=stages["coil"], effects=stages["search"], correction=stages["correction"],
                  calibration=stages["calibration"], disturbance_model={"q_force": 0.01}, black_box={},
                  comparison=comp, verdict="explained", reasons=["because"], parameters={"k_e": 1.0},
                  uncertainties={"k_e": 0.1}, written=["diagnosis.json"])
     assert list(run.own_keys()) == ["rig", "rig_file", "records", "validation", "horizons_s", "coil_calibration",
-                                    "effects", "correction", "calibration", "disturbance_model", "black_box"]
+                                    "effects", "correction", "calibration", "disturbance_model", "black_box",
+                                    "controller"]
     r = from_rig(run)
     assert isinstance(r, DiagnosisResult) and r.extra["effects"] is stages["search"]
     assert r.segments[0].skill["20 ms"] == f.position["20 ms"].skill_vs_stays_put and r.segments[1].role == "validation"
     assert [c.role for c in r.comparison] == ["calibration", "validation"] and r.parameters["k_e"].sigma == 0.1
     d = json.loads(json.dumps(r.to_json(), allow_nan=False))
     assert d == json.loads(json.dumps(run.to_json(), allow_nan=False))
-    assert list(d["records"][0]) == ["file", "label", "warnings", "segments", "force_balance"]
+    assert list(d["records"][0]) == ["file", "label", "warnings", "segments", "force_balance", "controller_check",
+                                     "closed_loop"]
+    assert list(d["records"][0]["force_balance"]) == ["p10", "median", "p90", "samples", "consistent",
+                                                      "current_scale_for_weight", "ohm"]
+    assert list(d["records"][0]["controller_check"]) == ["actuator_fit", "start", "fits_by_start", "loops"]
+    assert d["records"][0]["closed_loop"] == [{"label": f.label, "horizon_s": 0.02, "gap_fit": 95.0, "actuator_fit": 60.0}]
+    assert list(d["validation"][0]["force_balance_calibrated"]) == ["p10", "median", "p90", "samples", "consistent",
+                                                                    "current_scale_for_weight"]
+    # the checks, typed in the diagnosis's result too
+    (check,) = r.checks
+    assert check.force_balance == (0.25, 0.2, 0.3) and check.controller == "c" and check.actuator_fit == 93.0
+    assert check.loop_fits == {"current -> actuator": 97.0} and check.closed_loop == [(95.0, 60.0)]
     assert list(d["records"][0]["segments"][0]) == ["label", "before", "after", "own_coil", "frequency_response"]
     assert d["records"][0]["segments"][0]["after"] == json.loads(_strict(f))
     assert list(d["validation"][0]) == ["file", "label", "before", "after", "warnings", "force_balance_calibrated",

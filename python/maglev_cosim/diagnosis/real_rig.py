@@ -54,8 +54,9 @@ from .metrics import nrmse_fit
 from .problem import Coord
 from .result import (CalibratedFmu, Comparison, Fit, HorizonSkill, LocationEvidence, PredictionFit, RecordRef, Residual,
                      finite)
-from .rig_result import (EffectTrial, RigCalibration, RigCoilCalibration, RigComparison, RigCorrection, RigDrift,
-                         RigFigures, RigHorizon, RigRecordResult, RigRun, RigSearch, RigSegment, RigValidationSegment)
+from .rig_result import (ClosedLoopFigures, ControllerCheck, EffectTrial, RigCalibration, RigCoilCalibration,
+                         RigComparison, RigCorrection, RigDrift, RigFigures, RigForceBalance, RigHorizon, RigRecordResult,
+                         RigRun, RigSearch, RigSegment, RigValidationSegment)
 
 #: Prediction horizons of the position figures [s].
 HORIZONS_S = (0.005, 0.020, 0.050)
@@ -1646,7 +1647,7 @@ FORCE_BALANCE = (0.7, 1.4)
 MIN_CONTROLLER_FIT = 50.0
 
 
-def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> dict | None:
+def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> RigForceBalance | None:
     """How much of the ball's weight the rig's force law carries at the record's measured gap and
     current, over the samples where the ball is off both stops (1 mm clear): the 10th, 50th and
     90th percentiles of ``F/(m·g)``. A ball that levitates for seconds is held, on average, by its
@@ -1662,9 +1663,9 @@ def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> d
     step = max(1, int(lev.sum() // 2000))
     ratio = forces(p, x[lev][::step], np.clip(m.current[lev][::step], 0, None)) / (p.m_k * p.g)
     q10, q50, q90 = np.percentile(ratio, [10, 50, 90])
-    out = {"p10": float(q10), "median": float(q50), "p90": float(q90), "samples": int(lev.sum()),
-           "consistent": bool(FORCE_BALANCE[0] <= q50 <= FORCE_BALANCE[1]),
-           "current_scale_for_weight": float(1 / np.sqrt(q50)) if q50 > 0 else float("nan")}
+    out = RigForceBalance(p10=float(q10), median=float(q50), p90=float(q90), samples=int(lev.sum()),
+                          consistent=bool(FORCE_BALANCE[0] <= q50 <= FORCE_BALANCE[1]),
+                          current_scale_for_weight=float(1 / np.sqrt(q50)) if q50 > 0 else float("nan"))
     if rig.drive == "voltage" and m.drive is not None:
         # Ohm's law where the current settles (changes by under 2 % in 5 samples) and the drive
         # is inside its range: the voltage the rig file makes of the actuator signal over R·i
@@ -1678,11 +1679,11 @@ def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> d
         still &= (u > span[0] + 0.02 * (span[1] - span[0])) & (u < span[1] - 0.02 * (span[1] - span[0])) & (i > 0.05)
         if still.sum() >= 10:
             ohm = np.median(volts[still] / (p.R_c * i[still]))
-            out["ohm"] = {"median_V_over_Ri": float(ohm), "samples": int(still.sum())}
+            out.ohm = {"median_V_over_Ri": float(ohm), "samples": int(still.sum())}
     return out
 
 
-def controller_check(rig: Rig, m: Measured, ctl) -> dict:
+def controller_check(rig: Rig, m: Measured, ctl) -> ControllerCheck:
     """The declared controller replayed alone on the whole record's measured signals (reference,
     position, current): the NRMSE fit % of the actuator signal it gives against the recorded one.
     A cascade is also checked loop by loop when the record holds the current reference (each loop
@@ -1705,20 +1706,21 @@ def controller_check(rig: Rig, m: Measured, ctl) -> dict:
     fits = {name: nrmse_fit(u_meas, fast_loop.control(ctl, w, y, m.current, hold, x0))
             for name, (x0, hold) in starts.items()}
     start = max(fits, key=lambda k: fits[k] if np.isfinite(fits[k]) else -np.inf)
-    out = {"actuator_fit": fits[start], "start": start, "fits_by_start": fits, "loops": {}}
+    out = ControllerCheck(actuator_fit=fits[start], start=start, fits_by_start=fits)
     r_meas = m.extra.get("current_reference")
     if isinstance(ctl, Cascade) and r_meas is not None:
         r = fast_loop.control(ctl.outer, w, y, None, float(r_meas[0]))
         ui = fast_loop.control(ctl.inner, r_meas, m.current, None, float(u_meas[0]))
-        out["loops"] = {"position -> current reference": {"fit": nrmse_fit(r_meas, r),
-                                                         "rms_A": float(np.sqrt(np.mean((r - r_meas) ** 2)))},
-                        "current -> actuator": {"fit": nrmse_fit(u_meas, ui),
-                                                "rms_input_units": float(np.sqrt(np.mean((ui - u_meas) ** 2)))
-                                                * (rig.params.k_DA if rig.input_unit == "V" else 1.0)}}
+        out.loops = {"position -> current reference": {"fit": nrmse_fit(r_meas, r),
+                                                      "rms_A": float(np.sqrt(np.mean((r - r_meas) ** 2)))},
+                     "current -> actuator": {"fit": nrmse_fit(u_meas, ui),
+                                             "rms_input_units": float(np.sqrt(np.mean((ui - u_meas) ** 2)))
+                                             * (rig.params.k_DA if rig.input_unit == "V" else 1.0)}}
     return out
 
 
-def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams, ctl, horizon_s: float = 0.020) -> dict:
+def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams, ctl, horizon_s: float = 0.020
+                        ) -> ClosedLoopFigures:
     """The declared controller replayed in closed loop with the model, by prediction: the filter
     follows the segment, and from every sample the model and the controller run ``horizon_s``
     ahead on their own predicted readings and current. Fit % of the gap and of the actuator signal."""
@@ -1731,8 +1733,8 @@ def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams
     o = fast_loop.predict(_start(rig, r, params), ctl, w, r.y, r.u, float(r.u[0]), q_force=nz["q_force"],
                      f_force=nz["f_force"], r_sensor=nz["r_sensor"], horizon=h)
     ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"]) & np.isfinite(o["u_pred"])
-    return {"label": r.label, "horizon_s": horizon_s, "gap_fit": nrmse_fit(r.y[ok], o["y_pred"][ok]),
-            "actuator_fit": nrmse_fit(r.u[ok], o["u_pred"][ok])}
+    return ClosedLoopFigures(label=r.label, horizon_s=horizon_s, gap_fit=nrmse_fit(r.y[ok], o["y_pred"][ok]),
+                             actuator_fit=nrmse_fit(r.u[ok], o["u_pred"][ok]))
 
 
 # ----------------------------------------------------------------------------- the commands
@@ -1956,15 +1958,15 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
                        f"20 ms ahead has median skill {np.median(held_skill):+.2f} against 'stays put' ({MIN_SKILL:g} "
                        f"needed; best {max(held_skill):+.2f}, worst {min(held_skill):+.2f}): the verdict holds for the "
                        "calibration records only")
-        own = [fb["median"] for fb in (force_balance(rig, m, params) for m, _ in train) if fb]
+        own = [fb.median for fb in (force_balance(rig, m, params) for m, _ in train) if fb]
         for v in result.validation:
             k = v.after.position["20 ms"].skill_vs_stays_put
             if not (np.isfinite(k) and k < MIN_SKILL):
                 continue
             why = []
             fb = v.force_balance_calibrated
-            if fb and own and not min(own) - 0.02 <= fb["median"] <= max(own) + 0.02:
-                why.append(f"the calibrated force law carries {100 * fb['median']:.0f} % of the weight here against "
+            if fb and own and not min(own) - 0.02 <= fb.median <= max(own) + 0.02:
+                why.append(f"the calibrated force law carries {100 * fb.median:.0f} % of the weight here against "
                            f"{100 * min(own):.0f}-{100 * max(own):.0f} % on the calibration records (the force gain "
                            "differs between runs)")
             cur = v.after.current
@@ -1991,37 +1993,37 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
                            f"{tried} (at most −{100 * MIN_EFFECT_GAIN:.0f} % needed)")
     for e in result.records:
         fb = e.force_balance
-        if fb and not fb["consistent"]:
-            reasons.append(f"{e.label}: the rig file's force law carries {100 * fb['median']:.0f} % of the ball's "
-                           f"weight at the recorded gap and current (median over {fb['samples']} levitating samples; "
-                           f"10-90 %: {100 * fb['p10']:.0f}-{100 * fb['p90']:.0f} %): its force constant, or the "
+        if fb and not fb.consistent:
+            reasons.append(f"{e.label}: the rig file's force law carries {100 * fb.median:.0f} % of the ball's "
+                           f"weight at the recorded gap and current (median over {fb.samples} levitating samples; "
+                           f"10-90 %: {100 * fb.p10:.0f}-{100 * fb.p90:.0f} %): its force constant, or the "
                            "record's current or position scale, contradicts the record"
-                           + (f"; the current would have to be {fb['current_scale_for_weight']:.2f}x the recorded "
-                              "one to carry the weight" if np.isfinite(fb["current_scale_for_weight"]) else ""))
-        ohm = (fb or {}).get("ohm")
+                           + (f"; the current would have to be {fb.current_scale_for_weight:.2f}x the recorded "
+                              "one to carry the weight" if np.isfinite(fb.current_scale_for_weight) else ""))
+        ohm = fb.ohm if fb else None
         if ohm and not 0.7 <= ohm["median_V_over_Ri"] <= 1.4:
-            both = (fb and not fb["consistent"]
-                    and (ohm["median_V_over_Ri"] > 1) == (fb["current_scale_for_weight"] > 1))
+            both = (fb and not fb.consistent
+                    and (ohm["median_V_over_Ri"] > 1) == (fb.current_scale_for_weight > 1))
             reasons.append(f"{e.label}: where the current settles, the rig file's coil voltage is "
                            f"{ohm['median_V_over_Ri']:.2f}x R times the recorded current (median over {ohm['samples']} "
                            "samples; Ohm's law wants 1)"
                            + (f"; both checks find the recorded current too {'small' if ohm['median_V_over_Ri'] > 1 else 'large'} "
-                              f"for the rig file ({fb['current_scale_for_weight']:.1f}x for the weight, "
+                              f"for the rig file ({fb.current_scale_for_weight:.1f}x for the weight, "
                               f"{ohm['median_V_over_Ri']:.1f}x for Ohm's law): the record's current scale, or the rig "
                               "file's force constant and resistance, are wrong" if both else ""))
     if controller is not None:
         result.controller = {"name": controller.name, "file": str(controller.path), "type": controller.kind}
         for e in result.records:
             cc = e.controller_check
-            loops = [v["fit"] for v in cc["loops"].values()]
-            best = max(cc["actuator_fit"], min(loops) if loops else -np.inf)
+            loops = [v["fit"] for v in cc.loops.values()]
+            best = max(cc.actuator_fit, min(loops) if loops else -np.inf)
             if best >= MIN_CONTROLLER_FIT:
                 reasons.append(f"{e.label}: the declared controller {controller.name} reproduces the recorded "
-                               f"actuator signal (fit {cc['actuator_fit']:.1f} % from {cc['start']}"
-                               + "".join(f"; {k} {v['fit']:.1f} %" for k, v in cc["loops"].items()) + ")")
+                               f"actuator signal (fit {cc.actuator_fit:.1f} % from {cc.start}"
+                               + "".join(f"; {k} {v['fit']:.1f} %" for k, v in cc.loops.items()) + ")")
             else:
                 reasons.append(f"{e.label}: the declared controller {controller.name} does not reproduce the "
-                               f"recorded actuator signal (fit {cc['actuator_fit']:.1f} %, from rest or settled): the "
+                               f"recorded actuator signal (fit {cc.actuator_fit:.1f} %, from rest or settled): the "
                                "declaration is not "
                                "the controller that ran; the figures above rest on the measured actuator signal "
                                "(the unknown-controller path) and do not depend on it")
@@ -2313,8 +2315,8 @@ def _markdown(res: RigRun, plots: list[Path]) -> str:
     if fbs:
         lines += ["## Force balance: the share of the weight the force law carries at the measured gap and current",
                   "", "| record | 10 % | median | 90 % | levitating samples |", "|---|---|---|---|---|"]
-        lines += [f"| {lab} | {100 * f['p10']:.0f} % | {100 * f['median']:.0f} % | {100 * f['p90']:.0f} % | "
-                  f"{f['samples']} |" for lab, f in fbs]
+        lines += [f"| {lab} | {100 * f.p10:.0f} % | {100 * f.median:.0f} % | {100 * f.p90:.0f} % | "
+                  f"{f.samples} |" for lab, f in fbs]
         lines.append("")
     if res.controller:
         c = res.controller
@@ -2325,10 +2327,10 @@ def _markdown(res: RigRun, plots: list[Path]) -> str:
                   "| record | actuator fit % | per loop | closed loop 20 ms: gap fit % / actuator fit % |",
                   "|---|---|---|---|"]
         for e in res.records:
-            cc = e.controller_check or {}
-            loops = "; ".join(f"{k}: {v['fit']:.1f} %" for k, v in cc.get("loops", {}).items()) or "-"
-            cl = ", ".join(f"{x['gap_fit']:.1f} / {x['actuator_fit']:.1f}" for x in e.closed_loop or []) or "-"
-            lines.append(f"| {e.label} | {cc.get('actuator_fit', float('nan')):.1f} | {loops} | {cl} |")
+            cc = e.controller_check
+            loops = "; ".join(f"{k}: {v['fit']:.1f} %" for k, v in (cc.loops if cc else {}).items()) or "-"
+            cl = ", ".join(f"{x.gap_fit:.1f} / {x.actuator_fit:.1f}" for x in e.closed_loop or []) or "-"
+            lines.append(f"| {e.label} | {cc.actuator_fit if cc else float('nan'):.1f} | {loops} | {cl} |")
         lines.append("")
     lines += [f"![{p.stem}]({p.name})" for p in plots]
     return "\n".join(lines) + "\n"

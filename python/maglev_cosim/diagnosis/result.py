@@ -349,12 +349,12 @@ def from_rig(res, sigma: dict[str, float] | None = None) -> DiagnosisResult:
     checks = []
     for e in res.records:
         fb, cc = e.force_balance, e.controller_check
-        check = RecordCheck(e.label, (fb["median"], fb["p10"], fb["p90"]) if fb else None)
+        check = RecordCheck(e.label, (fb.median, fb.p10, fb.p90) if fb else None)
         if cc:
             check.controller = res.controller["name"]
-            check.actuator_fit = cc["actuator_fit"]
-            check.loop_fits = {k: x["fit"] for k, x in cc["loops"].items()}
-            check.closed_loop = [(x["gap_fit"], x["actuator_fit"]) for x in e.closed_loop]
+            check.actuator_fit = cc.actuator_fit
+            check.loop_fits = {k: x["fit"] for k, x in cc.loops.items()}
+            check.closed_loop = [(x.gap_fit, x.actuator_fit) for x in e.closed_loop]
         checks.append(check)
     comparison = [Comparison(c.role, c.segments,
                              {h: HorizonSkill(*(_num(getattr(x, k)) for w in HorizonSkill.WHO for k in (w, f"{w}_worst")))

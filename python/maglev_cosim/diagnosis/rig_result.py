@@ -10,6 +10,9 @@ part of ``diagnosis.json`` (docs/diagnosis-json.md, "A real rig's keys besides")
 - :class:`RigComparison`: :func:`~.real_rig.comparison` (model / black box / naive per role and horizon);
 - :class:`RigCoilCalibration`: :func:`~.real_rig.calibrate_coil` (the coil on the current computed from the
   actuator signal);
+- :class:`RigForceBalance`, :class:`ControllerCheck`, :class:`ClosedLoopFigures`: what a record says of the rig
+  file and of a declared controller (:func:`~.real_rig.force_balance`, :func:`~.real_rig.controller_check`,
+  :func:`~.real_rig.closed_loop_figures`);
 - :class:`RigRun`: :func:`~.real_rig.run`, every stage of the path, with a :class:`RigRecordResult` per
   calibration record (its :class:`RigSegment` each) and a :class:`RigValidationSegment` per validation
   segment; :func:`~.result.from_rig` makes the :class:`~.result.DiagnosisResult` of it.
@@ -407,6 +410,97 @@ class RigComparison:
                     for role, c in (d or {}).items()])
 
 
+
+@dataclass
+class RigForceBalance:
+    """How much of the ball's weight a force law carries at a record's measured gap and current
+    (:func:`~.real_rig.force_balance`), over the samples where the ball is off both stops.
+
+    Attributes
+    ----------
+    p10, median, p90 : float
+        Percentiles of the force over the weight, ``F/(m·g)`` [1].
+    samples : int
+        The levitating samples.
+    consistent : bool
+        Whether the median lies within :data:`~.real_rig.FORCE_BALANCE`.
+    current_scale_for_weight : float
+        The factor on the recorded current that would carry the weight [1] (NaN: none).
+    ohm : dict or None
+        A voltage drive: where the current settles, the median of the rig file's coil voltage over
+        ``R·i`` (``median_V_over_Ri`` [1]) and its ``samples``; None otherwise.
+    """
+
+    p10: float
+    median: float
+    p90: float
+    samples: int
+    consistent: bool
+    current_scale_for_weight: float
+    ohm: dict[str, float] | None = None
+
+    def to_json(self) -> Json:
+        out: Json = {"p10": self.p10, "median": self.median, "p90": self.p90, "samples": self.samples,
+                     "consistent": self.consistent, "current_scale_for_weight": self.current_scale_for_weight}
+        if self.ohm is not None:
+            out["ohm"] = dict(self.ohm)
+        return out
+
+
+@dataclass
+class ControllerCheck:
+    """A declared controller replayed alone on a record's measured signals (:func:`~.real_rig.controller_check`).
+
+    Attributes
+    ----------
+    actuator_fit : float
+        NRMSE fit [%] of the recorded actuator signal, from the better start.
+    start : str
+        That start: ``settled`` or ``rest``.
+    fits_by_start : dict of str to float
+        The fit [%] from each start.
+    loops : dict of str to dict
+        A cascade fed the recorded signals, loop by loop: ``fit`` [%] and the RMS error (``rms_A`` [A],
+        ``rms_input_units`` [the actuator's unit]); empty otherwise.
+    """
+
+    actuator_fit: float
+    start: str
+    fits_by_start: dict[str, float]
+    loops: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def to_json(self) -> Json:
+        return {"actuator_fit": self.actuator_fit, "start": self.start, "fits_by_start": dict(self.fits_by_start),
+                "loops": {k: dict(v) for k, v in self.loops.items()}}
+
+
+@dataclass
+class ClosedLoopFigures:
+    """A declared controller in closed loop with the model on one segment, by prediction
+    (:func:`~.real_rig.closed_loop_figures`).
+
+    Attributes
+    ----------
+    label : str
+        The segment.
+    horizon_s : float
+        The prediction horizon [s].
+    gap_fit : float
+        NRMSE fit [%] of the gap's reading predicted ``horizon_s`` ahead.
+    actuator_fit : float
+        NRMSE fit [%] of the actuator signal predicted ``horizon_s`` ahead.
+    """
+
+    label: str
+    horizon_s: float
+    gap_fit: float
+    actuator_fit: float
+
+    def to_json(self) -> Json:
+        return {"label": self.label, "horizon_s": self.horizon_s, "gap_fit": self.gap_fit,
+                "actuator_fit": self.actuator_fit}
+
+
 @dataclass
 class RigCoilCalibration:
     """What :func:`~.real_rig.calibrate_coil` found: the coil's parameters that make the current computed
@@ -489,9 +583,8 @@ class RigValidationSegment:
         Its figures with the calibrated model (its own coil).
     warnings : list of str
         The record's warnings.
-    force_balance_calibrated : dict or None
-        The share of the weight the calibrated force law carries at the record's gap and current
-        (:func:`~.real_rig.force_balance`).
+    force_balance_calibrated : RigForceBalance or None
+        The share of the weight the calibrated force law carries at the record's gap and current.
     own_coil : dict of str to float or None
         The coil fitted on this segment alone [SI].
     before : RigFigures or None
@@ -502,14 +595,15 @@ class RigValidationSegment:
     label: str
     after: RigFigures
     warnings: list[str]
-    force_balance_calibrated: dict[str, Any] | None = None
+    force_balance_calibrated: RigForceBalance | None = None
     own_coil: dict[str, float] | None = None
     before: RigFigures | None = None
 
     def to_json(self) -> Json:
         return {"file": self.file, "label": self.label, "before": self.before.to_json() if self.before else None,
                 "after": self.after.to_json(), "warnings": list(self.warnings),
-                "force_balance_calibrated": self.force_balance_calibrated, "own_coil": self.own_coil}
+                "force_balance_calibrated": self.force_balance_calibrated.to_json() if self.force_balance_calibrated
+                else None, "own_coil": self.own_coil}
 
 
 @dataclass
@@ -526,31 +620,30 @@ class RigRecordResult:
         The reader's warnings.
     segments : list of RigSegment
         Its levitation segments.
-    force_balance : dict or None
-        The share of the weight the rig file's force law carries at the measured gap and current
-        (:func:`~.real_rig.force_balance`: percentiles ``p10``, ``median``, ``p90`` [1], ...).
-    controller_check : dict or None
-        The declared controller replayed on the record (:func:`~.real_rig.controller_check`); None
-        without one.
-    closed_loop : list of dict or None
-        The declared controller in closed loop with the model, per segment
-        (:func:`~.real_rig.closed_loop_figures`); None without one.
+    force_balance : RigForceBalance or None
+        The share of the weight the rig file's force law carries at the measured gap and current (None:
+        no measured current, or no levitating samples).
+    controller_check : ControllerCheck or None
+        The declared controller replayed on the record; None without one.
+    closed_loop : list of ClosedLoopFigures or None
+        The declared controller in closed loop with the model, per segment; None without one.
     """
 
     file: str
     label: str
     warnings: list[str]
     segments: list[RigSegment] = field(default_factory=list)
-    force_balance: dict[str, Any] | None = None
-    controller_check: dict[str, Any] | None = None
-    closed_loop: list[dict[str, Any]] | None = None
+    force_balance: RigForceBalance | None = None
+    controller_check: ControllerCheck | None = None
+    closed_loop: list[ClosedLoopFigures] | None = None
 
     def to_json(self) -> Json:
         out: Json = {"file": self.file, "label": self.label, "warnings": list(self.warnings),
-                     "segments": [s.to_json() for s in self.segments], "force_balance": self.force_balance}
+                     "segments": [s.to_json() for s in self.segments],
+                     "force_balance": self.force_balance.to_json() if self.force_balance else None}
         if self.controller_check is not None:
-            out["controller_check"] = self.controller_check
-            out["closed_loop"] = list(self.closed_loop or [])
+            out["controller_check"] = self.controller_check.to_json()
+            out["closed_loop"] = [c.to_json() for c in self.closed_loop or []]
         return out
 
 
