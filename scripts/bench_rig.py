@@ -25,6 +25,7 @@ from pathlib import Path
 
 import benchdoc
 from maglev_cosim.diagnosis import diagnose, real_rig
+from maglev_cosim.diagnosis.rig_result import RigComparison
 
 ROOT = benchdoc.ROOT
 CALIBRATION = ("multisteps_stairs/LQR_tracking", "multisteps_stairs/PID_anti_windup", "step/MPC")
@@ -60,7 +61,7 @@ def section(res: dict, command: str, wall_s: float) -> str:
              "the black-box baseline (one ridge regression per horizon on the last 30 ms of gap differences and "
              "the measured current and its square up to the predicted instant, fitted by the tool on the three "
              "calibration records), the same black box with the current only up to the prediction's start, "
-"and 'constant velocity'.", "", *real_rig.comparison_table(comp)]
+"and 'constant velocity'.", "", *real_rig.comparison_table(RigComparison.from_json(comp))]
     lines += ["", "Per segment: the current from the PWM duty (fit %), and the skill of model (closed loop, identified "
               "controller) / black box at each horizon.", "", "| segment | role | current from PWM | 5 ms | 20 ms | 50 ms |", "|---|---|---|---|---|---|"]
     rows = [(s["label"], "calibration", s["after"]) for e in res["records"] for s in e["segments"]]

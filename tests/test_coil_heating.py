@@ -56,10 +56,10 @@ def test_a_planted_warming_is_recovered_within_two_sigma_from_the_current_comput
     rig = load_rig("inteco-mls2em")
     r = _record(rig, rig.params.replace(kappa_R=PLANTED), 6000, seed=7)
     p, info = real_rig.calibrate_coil(rig, [r], rig.params)
-    est, sd = info["values"]["kappa_R"], info["sigma"]["kappa_R"]
+    est, sd = info.values["kappa_R"], info.sigma["kappa_R"]
     assert 0 < sd < 0.25 * PLANTED, sd
     assert abs(est - PLANTED) <= 2 * sd, (est, sd)
-    assert abs(info["values"]["R_c"] - rig.params.R_c) <= 2 * info["sigma"]["R_c"]
+    assert abs(info.values["R_c"] - rig.params.R_c) <= 2 * info.sigma["R_c"]
     # the segment's own coil carries it, with its σ, into the figures and the report
     _, own = real_rig._own_coil(rig, r, rig.params, {"calibrated": True})
     assert own["kappa_R"] == pytest.approx(est, abs=0.2 * sd) and own["kappa_R_sigma"] > 0

@@ -14,7 +14,6 @@ from maglev_cosim.loop import fast_loop
 from maglev_cosim.loop.controllers import (Cascade, ControllerError, StateFeedback, design_state_feedback, discrete_plant,
                                       load_controller, start)
 from maglev_cosim.loop.simulate import reference_signal, simulate
-from maglev_cosim.diagnosis.metrics import nrmse_fit
 from maglev_cosim.plant.params import get_params
 from maglev_cosim.loop.pid import PID
 from maglev_cosim.rigs import load_rig
@@ -187,7 +186,7 @@ def test_levitador_cascade_reproduces_each_recorded_loop():
 
     rig = load_rig("levitador")
     res = controller_check(rig, read_levitador(LEVITADOR), load_controller("levitador-cascade").controller)
-    loops = res["loops"]
+    loops = res.loops
     assert loops["position -> current reference"]["fit"] > 95 and loops["position -> current reference"]["rms_A"] < 0.01
     assert loops["current -> actuator"]["fit"] > 95 and loops["current -> actuator"]["rms_input_units"] < 0.1
     # wrong declarations fit worse: clamping instead of the firmware's band, the current gain halved
@@ -195,8 +194,8 @@ def test_levitador_cascade_reproduces_each_recorded_loop():
     clamp = Cascade(c.outer.replace(anti_windup="clamping"), c.inner.replace(anti_windup="clamping"))
     half = Cascade(c.outer, c.inner.replace(kp=c.inner.kp / 2))
     m = read_levitador(LEVITADOR)
-    assert controller_check(rig, m, clamp)["loops"]["current -> actuator"]["fit"] < 90
-    assert controller_check(rig, m, half)["loops"]["current -> actuator"]["fit"] < loops["current -> actuator"]["fit"] - 2
+    assert controller_check(rig, m, clamp).loops["current -> actuator"]["fit"] < 90
+    assert controller_check(rig, m, half).loops["current -> actuator"]["fit"] < loops["current -> actuator"]["fit"] - 2
 
 
 @pytest.mark.skipif(not LEVITADOR.exists(), reason="shared real records not found")
@@ -207,10 +206,10 @@ def test_levitador_record_contradicts_its_rig_files_current_scale():
     from maglev_cosim.diagnosis.real_rig import force_balance
 
     fb = force_balance(load_rig("levitador"), read_levitador(LEVITADOR))
-    assert not fb["consistent"] and fb["median"] < 0.2 and fb["current_scale_for_weight"] > 2
-    assert fb["ohm"]["median_V_over_Ri"] > 2
+    assert not fb.consistent and fb.median < 0.2 and fb.current_scale_for_weight > 2
+    assert fb.ohm["median_V_over_Ri"] > 2
     good = force_balance(load_rig("inteco-mls2em"), _inteco("step", "LQI - KF.mat"))
-    assert good["consistent"] and 0.8 < good["ohm"]["median_V_over_Ri"] < 1.25
+    assert good.consistent and 0.8 < good.ohm["median_V_over_Ri"] < 1.25
 
 
 def _inteco(profile, name):

@@ -102,9 +102,9 @@ def test_the_real_rig_calibration_recovers_a_planted_second_lag():
     r = _record(rig, np.zeros(5000), seed=5, params=rig.params.replace(beta_F=0.5, T_F2=0.02), period=0.5)
     _, cal = real_rig.calibrate(rig, [r], rig.params, names=("beta_F", "T_F2"), noise=NOISE, fit_noise=False,
                                 max_evaluations=20)
-    assert cal["values"]["beta_F"] == pytest.approx(0.5, abs=0.03)
-    assert cal["values"]["T_F2"] == pytest.approx(0.02, rel=0.05)
-    assert 0 < cal["sigma"]["beta_F"] < 0.03 and not cal["on_bounds"]
+    assert cal.values["beta_F"] == pytest.approx(0.5, abs=0.03)
+    assert cal.values["T_F2"] == pytest.approx(0.02, rel=0.05)
+    assert 0 < cal.sigma["beta_F"] < 0.03 and not cal.on_bounds
 
 
 def test_the_real_rig_run_refuses_an_unknown_fitting_mode(tmp_path):

@@ -171,13 +171,13 @@ def test_unknown_controller_replay_beats_stays_put_on_an_mpc_record():
     m = read_inteco_mat(INTECO.parent / "results" / "multisteps_stairs" / "MPC - KF.mat")
     (r,) = real_rig.prepare(rig, m)
     f = real_rig.figures(rig, r, rig.params)
-    assert f["current"]["from_actuator"] > 80
-    assert f["position"]["5 ms"]["skill_vs_stays_put"] > 0.05
+    assert f.current["from_actuator"] > 80
+    assert f.position["5 ms"].skill_vs_stays_put > 0.05
     # the model is not merely the naive predictor: 50 ms ahead, driven by the duty, the open-loop
     # instability wins (fit 67.2 % against 89.3 %); in closed loop with the controller identified
     # from the record's other blocks, which reads its reaction after the start, it does not (91.4 %)
-    p50 = f["position"]["50 ms"]
-    assert p50["model_measured_input"] < p50["stays_put"] < p50["model"]
+    p50 = f.position["50 ms"]
+    assert p50.model_measured_input < p50.stays_put < p50.model
 
 
 @pytest.mark.slow
@@ -269,10 +269,10 @@ def test_effect_search_on_a_rig_finds_a_planted_force_lag_and_nothing_where_ther
 
     rig = load_rig("inteco-mls2em")
     found = real_rig.effect_search(rig, [_inteco_record(rig, rig.params.replace(T_F=3e-3), 1)], rig.params)
-    assert found["selected"] == ["force_lag"]
-    assert found["parameters"]["T_F"] == pytest.approx(3e-3, rel=0.1)
+    assert found.selected == ["force_lag"]
+    assert found.parameters["T_F"] == pytest.approx(3e-3, rel=0.1)
     none = real_rig.effect_search(rig, [_inteco_record(rig, rig.params, 2)], rig.params)
-    assert none["selected"] == [], none["candidates"]
+    assert none.selected == [], none.candidates
 
 
 # ----------------------------------------------------------------------------- the levitador's sessions

@@ -9,6 +9,7 @@ import pytest
 from maglev_cosim.plant import fast, formulas
 from maglev_cosim.loop import fast_loop
 from maglev_cosim.diagnosis import real_rig
+from maglev_cosim.diagnosis.rig_result import RigComparison
 from maglev_cosim.loop.controllers import load_controller
 from maglev_cosim.diagnosis import blackbox as bb
 from maglev_cosim.records.measured import Segment
@@ -48,13 +49,13 @@ def test_a_planted_drift_of_the_force_is_recovered_within_its_two_sigma(planted)
     r = _record(rig, force, seed=int(10 + planted))
     o = real_rig.predict(rig, r, rig.params, 0.005, noise=NOISE)
     d = real_rig.drift(r, o["d"], o["d_sd"], rig.params.m_k * rig.params.g)
-    t = np.asarray(d["t_s"])
+    t = np.asarray(d.t_s)
     truth = np.interp(t, np.arange(n) * 1e-3, force)
-    est, two_sigma = np.asarray(d["force_pct_weight"]), np.asarray(d["two_sigma_pct_weight"])
+    est, two_sigma = np.asarray(d.force_pct_weight), np.asarray(d.two_sigma_pct_weight)
     assert len(t) == 7 and np.all(two_sigma > 0) and np.all(two_sigma < 2.0)
     assert np.all(np.abs(est - truth) <= two_sigma), (est, truth, two_sigma)
-    assert abs(d["change_pct_weight"] - (truth[-1] - truth[0])) <= d["change_two_sigma"]
-    assert d["significant"] == (planted != 0.0)
+    assert abs(d.change_pct_weight - (truth[-1] - truth[0])) <= d.change_two_sigma
+    assert d.significant == (planted != 0.0)
 
 
 def test_the_figures_show_the_black_box_beside_the_model_and_the_verdict_heeds_it():
@@ -64,7 +65,7 @@ def test_the_figures_show_the_black_box_beside_the_model_and_the_verdict_heeds_i
     boxes = {hs: bb.fit([bb.Series(r.position, r.current, r.ts) for r in train], hs) for hs in real_rig.HORIZONS_S}
     f = real_rig.figures(rig, test, rig.params, NOISE, boxes)
     for h in ("5 ms", "20 ms", "50 ms"):
-        sk = f["position"][h]["skill"]
+        sk = f.position[h].skill
         assert set(sk) >= {"model", "black_box", "constant_velocity", "model_on_position"}
         # the exact model beats the naive predictor; the reading is linear in the gap here, so
         # the model's skill is the same on the reading and on the position
@@ -73,17 +74,19 @@ def test_the_figures_show_the_black_box_beside_the_model_and_the_verdict_heeds_i
     # of the record's own plant beats the black box at every horizon: the filter and the
     # predictions through the unstable plant cost nothing the regression does not pay too
     exact = real_rig.figures(rig, test, rig.params, {**NOISE, "q_force": 1e-3, "f_force": 20.0}, boxes)
-    for h, v in exact["position"].items():
-        assert v["skill"]["model"] > v["skill"]["black_box"] + 0.05, (h, v["skill"])
+    for h, v in exact.position.items():
+        assert v.skill["model"] > v.skill["black_box"] + 0.05, (h, v.skill)
     comp = real_rig.comparison([f], [f])
-    assert comp["validation"]["20 ms"]["model"] == f["position"]["20 ms"]["skill"]["model"]
+    assert comp.get("validation").horizons["20 ms"].model == f.position["20 ms"].skill["model"]
     # the rule: any horizon lost to the black box makes "explained" only "explained in part"
     won = {"segments": 1, "20 ms": {"model": 0.5, "black_box": 0.3}, "50 ms": {"model": 0.2, "black_box": 0.1}}
     lost = {"segments": 1, "20 ms": {"model": 0.5, "black_box": 0.3}, "50 ms": {"model": -0.1, "black_box": 0.4}}
-    assert real_rig.judge_against_black_box("explained", {"validation": won})[0] == "explained"
-    verdict, why = real_rig.judge_against_black_box("explained", {"calibration": won, "validation": lost})
+    judge = lambda comp: real_rig.judge_against_black_box("explained", RigComparison.from_json(comp))  # noqa: E731
+    assert judge({"validation": won})[0] == "explained"
+    verdict, why = judge({"calibration": won, "validation": lost})
     assert verdict == "explained in part" and "50 ms" in why[0] and "20 ms:" not in why[0]
-    assert real_rig.judge_against_black_box("unexplained: mechanics", {"validation": lost})[0] == "unexplained: mechanics"
+    assert real_rig.judge_against_black_box("unexplained: mechanics", RigComparison.from_json({"validation": lost}))[0] \
+        == "unexplained: mechanics"
 
 
 @pytest.mark.slow
@@ -102,15 +105,15 @@ def test_the_located_correction_recovers_a_planted_friction_and_viscous_force(pl
     recs = [_record(rig, np.zeros(4000), seed=s, params=truth, period=0.7) for s in (21, 22)]
     res = real_rig.correction_search(rig, recs, rig.params, {**NOISE, "q_force": 1e-3, "f_force": 20.0},
                                    ridge=(1e-2, 1e-1))
-    s = res["summary"]
-    assert res["basis"]["n_x"] == real_rig.CORRECTION_NX and len(res["coef"]) == 3 * real_rig.CORRECTION_NX
+    s = res.summary
+    assert res.basis["n_x"] == real_rig.CORRECTION_NX and len(res.coef) == 3 * real_rig.CORRECTION_NX
     if planted:
-        assert res["selected"] and res["held_out_gain"] > 0.2, res["held_out_gain"]
+        assert res.selected and res.held_out_gain > 0.2, res.held_out_gain
         assert abs(s["viscous_N_s_per_m"] - k_fv) <= 3 * s["viscous_sigma"], s
         assert abs(s["friction_N"] - f_c) <= 3 * s["friction_sigma"], s
         assert s["held_out_gain_by_shape"]["static+friction"] > s["held_out_gain_by_shape"]["static+viscous"]
     else:
-        assert not res["selected"], res["held_out_gain"]
+        assert not res.selected, res.held_out_gain
         assert abs(s["viscous_N_s_per_m"]) < 0.1 and abs(s["friction_N"]) < 0.003 * w, s
         assert abs(s["static_pct_weight"]) < 0.3, s
 

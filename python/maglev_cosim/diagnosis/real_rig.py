@@ -52,7 +52,11 @@ from . import reaction
 from .effects import CATALOGUE, force_law
 from .metrics import nrmse_fit
 from .problem import Coord
-from .result import HorizonSkill, finite
+from .result import (CalibratedFmu, Comparison, Fit, HorizonSkill, LocationEvidence, PredictionFit, RecordRef, Residual,
+                     finite)
+from .rig_result import (ClosedLoopFigures, ControllerCheck, EffectTrial, RigCalibration, RigCoilCalibration,
+                         RigComparison, RigCorrection, RigDrift, RigFigures, RigForceBalance, RigHorizon, RigRecordResult,
+                         RigRun, RigSearch, RigSegment, RigValidationSegment)
 
 #: Prediction horizons of the position figures [s].
 HORIZONS_S = (0.005, 0.020, 0.050)
@@ -284,7 +288,7 @@ def _valid(n: int, h: int, ts: float) -> np.ndarray:
 DRIFT_BLOCK_S = 1.0
 
 
-def drift(r: RigRecord, d: np.ndarray, d_sd: np.ndarray, weight: float) -> dict:
+def drift(r: RigRecord, d: np.ndarray, d_sd: np.ndarray, weight: float) -> RigDrift:
     """The filtered random force on the ball (``d`` [N], ``d_sd`` its standard deviation) as a
     drift: its mean over blocks of :data:`DRIFT_BLOCK_S` in % of the ball's ``weight`` [N], with
     ±2σ (the filter's own standard deviation, which the block mean does not shrink: the force is
@@ -299,21 +303,22 @@ def drift(r: RigRecord, d: np.ndarray, d_sd: np.ndarray, weight: float) -> dict:
             t.append(float((a + (blk.stop - a) / 2) * r.ts))
             mean.append(float(100 * np.mean(d[blk]) / weight))
             sd.append(float(100 * np.mean(d_sd[blk]) / weight))
-    out: dict = {"t_s": t, "force_pct_weight": mean, "two_sigma_pct_weight": [2 * v for v in sd]}
+    out = RigDrift(t_s=t, force_pct_weight=mean, two_sigma_pct_weight=[2 * v for v in sd])
     if len(mean) >= 2:
         change = mean[-1] - mean[0]
         band = 2 * float(np.hypot(sd[0], sd[-1]))
-        out.update(change_pct_weight=change, change_two_sigma=band, significant=bool(abs(change) > band),
-                   range_pct_weight=[min(mean), max(mean)])
+        out.change_pct_weight, out.change_two_sigma = change, band
+        out.significant, out.range_pct_weight = bool(abs(change) > band), [min(mean), max(mean)]
     return out
 
 
 def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float] | None = None,
-            black_box: dict[float, object] | None = None) -> dict:
-    """The fit figures of one segment (module docstring); JSON-ready. ``black_box``: the fitted
+            black_box: dict[float, object] | None = None) -> RigFigures:
+    """The fit figures of one segment (module docstring). ``black_box``: the fitted
     direct predictors per horizon (:func:`maglev_cosim.diagnosis.blackbox.fit`), shown beside the
     model and the naive predictors, all as skill against "stays put" over the same samples."""
-    out: dict = {"label": r.label, "samples": len(r.y), "duration_s": len(r.y) * r.ts, "position": {}}
+    position: dict[str, RigHorizon] = {}
+    drifted = None
     if r.current is not None:
         o = predict(rig, r, params, r.ts, use_current=False, noise=noise)
         ok = _valid(len(r.y), 1, r.ts) & np.isfinite(o["i_pred"])
@@ -327,10 +332,10 @@ def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float]
     try:
         loop: reaction.ReactionPrediction | None = reaction.predict(r.y, r.u, r.reference, traj, lags, r.ts,
                                                                            current=r.current)
-        out["identified_controller"] = loop.to_json()
+        identified = loop.to_json()
     except ValueError as e:     # too short to identify a controller: the model driven by the actuator signal
         loop = None
-        out["identified_controller"] = {"missing": str(e)}
+        identified = {"missing": str(e)}
     for q, (hs, o) in enumerate(zip(HORIZONS_S, outs)):
         h = lags[q]
         y = r.y
@@ -340,35 +345,35 @@ def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float]
         ok = _valid(len(r.y), h + 10, r.ts) & np.isfinite(o["y_pred"]) & np.isfinite(y_loop)
         stay = bb.stays_put(y, h)
         cv = bb.constant_velocity(y, h, r.ts)
-        entry = {"model": nrmse_fit(y[ok], y_loop[ok]), "stays_put": nrmse_fit(y[ok], stay[ok]),
-                 "model_measured_input": nrmse_fit(y[ok], o["y_pred"][ok]),
-                 "rms_y": float(np.sqrt(np.mean((y[ok] - y_loop[ok]) ** 2))) if ok.any() else float("nan"),
-                 "rms_y_measured_input": float(np.sqrt(np.mean((y[ok] - o["y_pred"][ok]) ** 2))) if ok.any()
-                 else float("nan"),
-                 "constant_velocity": nrmse_fit(y[ok], cv[ok]),
-                 "skill_vs_stays_put": bb.skill(y, y_loop, stay, ok),
-                 "skill": {"model": bb.skill(y, y_loop, stay, ok),
-                           "model_measured_input": bb.skill(y, o["y_pred"], stay, ok),
-                           "constant_velocity": bb.skill(y, cv, stay, ok)}}
+        entry = RigHorizon(model=nrmse_fit(y[ok], y_loop[ok]), stays_put=nrmse_fit(y[ok], stay[ok]),
+                           model_measured_input=nrmse_fit(y[ok], o["y_pred"][ok]),
+                           rms_y=float(np.sqrt(np.mean((y[ok] - y_loop[ok]) ** 2))) if ok.any() else float("nan"),
+                           rms_y_measured_input=float(np.sqrt(np.mean((y[ok] - o["y_pred"][ok]) ** 2))) if ok.any()
+                           else float("nan"),
+                           constant_velocity=nrmse_fit(y[ok], cv[ok]),
+                           skill_vs_stays_put=bb.skill(y, y_loop, stay, ok),
+                           skill={"model": bb.skill(y, y_loop, stay, ok),
+                                  "model_measured_input": bb.skill(y, o["y_pred"], stay, ok),
+                                  "constant_velocity": bb.skill(y, cv, stay, ok)})
         if black_box and hs in black_box:
             # the black box predicts the record's position: both are compared there too
             yb = black_box[hs].predict(series)
             okb = ok & np.isfinite(yb)
-            entry["black_box"] = nrmse_fit(r.position[okb], yb[okb])
-            entry["skill"]["black_box"] = bb.skill(r.position, yb, bb.stays_put(r.position, h), okb)
+            entry.black_box = nrmse_fit(r.position[okb], yb[okb])
+            entry.skill["black_box"] = bb.skill(r.position, yb, bb.stays_put(r.position, h), okb)
             if ("past", hs) in black_box:
                 yp = black_box[("past", hs)].predict(series)
-                entry["skill"]["black_box_past"] = bb.skill(r.position, yp, bb.stays_put(r.position, h),
-                                                            okb & np.isfinite(yp))
-            entry["skill"]["model_on_position"] = bb.skill(r.position, _to_position(rig, y_loop),
-                                                           bb.stays_put(r.position, h), okb)
-        out["position"][f"{hs * 1e3:g} ms"] = entry
+                entry.skill["black_box_past"] = bb.skill(r.position, yp, bb.stays_put(r.position, h),
+                                                         okb & np.isfinite(yp))
+            entry.skill["model_on_position"] = bb.skill(r.position, _to_position(rig, y_loop),
+                                                        bb.stays_put(r.position, h), okb)
+        position[f"{hs * 1e3:g} ms"] = entry
         if cur is not None:
             cur[f"{hs * 1e3:g} ms"] = nrmse_fit(r.current[ok], o["i_pred"][ok])
         if hs == HORIZONS_S[0]:
-            out["drift"] = drift(r, o["d"], o["d_sd"], params.m_k * params.g)
-    out["current"] = cur
-    return out
+            drifted = drift(r, o["d"], o["d_sd"], params.m_k * params.g)
+    return RigFigures(label=r.label, samples=len(r.y), duration_s=len(r.y) * r.ts, position=position,
+                      identified_controller=identified, drift=drifted, current=cur)
 
 
 def _to_position(rig: Rig, y_pred: np.ndarray) -> np.ndarray:
@@ -380,12 +385,12 @@ def _to_position(rig: Rig, y_pred: np.ndarray) -> np.ndarray:
 
 
 def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, *,
-                   names: Sequence[str] | None = None) -> tuple[PlantParams, dict]:
+                   names: Sequence[str] | None = None) -> tuple[PlantParams, RigCoilCalibration | None]:
     """The coil's parameters (default :data:`COIL` of the rig's drive) that make the current
     computed from the actuator signal alone (the filter never sees the measured current; the gap
     is tracked) fit the measured current: least squares on factors in [0.5, 2] (offsets ±1 V; the
     delay ``T_d`` within :data:`COIL_DELAY_BOUNDS`, the resistance's drift ``kappa_R`` within
-    :data:`COIL_DRIFT_BOUNDS`). Returns the parameters and a summary (``values``, ``sigma``: ±1σ from
+    :data:`COIL_DRIFT_BOUNDS`). Returns the parameters and a :class:`~.rig_result.RigCoilCalibration` (``values``, ``sigma``: ±1σ from
     the Jacobian, widened for the residual's correlation from sample to sample (an AR(1) count of
     independent samples), ``fit`` % per record, ``on_bounds``); with no measured current, the
     parameters unchanged and ``None``."""
@@ -442,10 +447,11 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
     sol = least_squares(fun, np.clip(z0, lo, hi), jac=jac, bounds=(lo, hi),
                         x_scale=np.where(delay, 0.5, 0.05), max_nfev=30)
     p = make(sol.x)
-    return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
-               "sigma": _coil_sigma(sol, names, base, additive, absolute),
-               "fit": {r.label: nrmse_fit(*reversed(c)) for r, c in zip(use, _map(lambda r: currents(p, r), use))},
-               "on_bounds": [n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)]}
+    return p, RigCoilCalibration(
+        names=list(names), values={n: float(getattr(p, n)) for n in names},
+        sigma=_coil_sigma(sol, names, base, additive, absolute),
+        fit={r.label: nrmse_fit(*reversed(c)) for r, c in zip(use, _map(lambda r: currents(p, r), use))},
+        on_bounds=[n for n, z, a, b in zip(names, sol.x, lo, hi) if min(z - a, b - z) < 1e-3 * (b - a)])
 
 
 def _coil_sigma(sol, names: Sequence[str], base: np.ndarray, additive: np.ndarray, absolute: np.ndarray
@@ -486,7 +492,7 @@ CAL_HORIZONS_S = (0.020, 0.050)
 def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None = None, *,
               names: Sequence[str] | None = None, noise: dict[str, float] | None = None,
               horizons_s: Sequence[float] = CAL_HORIZONS_S, stride: int = 20, max_evaluations: int = 60,
-              fit_noise: bool = True, parity: int | None = None, progress=None) -> tuple[PlantParams, dict]:
+              fit_noise: bool = True, parity: int | None = None, progress=None) -> tuple[PlantParams, RigCalibration]:
     """One parameter set for several segments, by the prediction-error method: least squares
     (scipy, trust-region reflective) on the prediction errors ``horizons_s`` ahead of the gap (each
     scaled by the error of "stays put" at that horizon, so every horizon counts alike) and of the
@@ -497,8 +503,9 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     ``parity``: only the predictions that end in the even (0) or odd (1) blocks of
     :data:`EFFECT_BLOCK_S` count (the effect search's fit and held-out halves).
 
-    Returns the calibrated parameters and a summary: ``values``, ``rig_values``, ``noise`` (the
-    calibrated disturbance model), costs before and after, evaluations, ``on_bounds``."""
+    Returns the calibrated parameters and a :class:`~.rig_result.RigCalibration`: ``values``,
+    ``rig_values``, ``noise`` (the calibrated disturbance model), costs before and after, evaluations,
+    ``on_bounds``."""
     p0 = params or rig.params
     names = tuple(names or CALIBRATED[rig.drive])
     nz0 = dict(noise or noise_defaults(rig, p0))
@@ -591,11 +598,11 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     at_bound = [n for n, z, a, b in zip((*names, *free), sol.x, lo, hi)
                 if min(z - a, b - z) < 1e-3 * (b - a) and not (n in names and absolute[names.index(n)] and z - a < 1e-9)]
     on_bound = [n for n in at_bound if n in names]
-    return p, {"names": list(names), "values": {n: float(getattr(p, n)) for n in names},
-               "rig_values": {n: float(v) for n, v in zip(names, base)}, "noise": nz, "sigma": sigma,
-               "horizons_s": list(horizons_s),
-               "cost_before": float(0.5 * r0 @ r0), "cost_after": float(sol.cost), "evaluations": evals[0],
-               "on_bounds": on_bound, "noise_on_bounds": [n for n in at_bound if n in NOISE]}
+    return p, RigCalibration(names=list(names), values={n: float(getattr(p, n)) for n in names},
+                             rig_values={n: float(v) for n, v in zip(names, base)}, noise=nz, sigma=sigma,
+                             horizons_s=list(horizons_s), cost_before=float(0.5 * r0 @ r0), cost_after=float(sol.cost),
+                             evaluations=evals[0], on_bounds=on_bound,
+                             noise_on_bounds=[n for n in at_bound if n in NOISE])
 
 
 def _predict_all(rig: Rig, jobs: Sequence[tuple[RigRecord, float]], params: PlantParams, *, stride: int = 1,
@@ -1054,7 +1061,8 @@ def _gains(held: dict[str, float], base: dict[str, float]) -> tuple[float, dict[
 
 
 def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, say=lambda s: None, *,
-                  max_effects: int = 2, noise: dict[str, float] | None = None, skip: Sequence[str] = ()) -> dict:
+                  max_effects: int = 2, noise: dict[str, float] | None = None, skip: Sequence[str] = ()
+                  ) -> RigSearch:
     """The catalogue's effects that the rig's drive and force law can take (:func:`rig_candidates`: every
     entry of :data:`~.effects.CATALOGUE` that applies, and the real-rig extras) tried on its calibrated
     model, in greedy rounds: each effect not yet selected is fitted on the even held-out blocks and
@@ -1071,24 +1079,24 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
     refitted on every block, and kept for the next round; at most ``max_effects``. When none passes,
     the pairs of :data:`RIG_PAIRS` are fitted jointly and judged the same way.
 
-    JSON-ready: ``offered`` (every catalogue entry and extra: None where offered, else why not, by the
-    rig's drive and force law), ``skipped`` (offered, but a parameter is fitted by the calibration),
-    ``candidates`` (round, effect, parameter(s), ``values``, location, held-out gain per signal),
+    A :class:`~.rig_result.RigSearch`: ``offered`` (every catalogue entry and extra: None where offered, else
+    why not, by the rig's drive and force law), ``skipped`` (offered, but a parameter is fitted by the calibration),
+    ``candidates`` (:class:`~.rig_result.EffectTrial`: round, effect, parameter(s), ``values``, location,
+    held-out gain per signal),
     ``selected``, ``parameters`` (the selected effects' fitted values), ``computed`` (the values they
     computed from the records: the force exponent's pivot) and ``held_out_cost`` of the model without
     an effect. ``noise``: the filter's disturbance model (default :func:`noise_defaults`); ``skip``:
     parameters the calibration fits already (their effects are not tried again)."""
     cands = rig_candidates(rig, records, params, skip)
     offered = rig_offer(rig.drive, force_law(_values_of(params)))
-    out: dict = {"held_out_cost": prediction_cost(rig, records, params, parity=1, noise=noise), "block_s": EFFECT_BLOCK_S,
-                 "min_gain": MIN_EFFECT_GAIN, "offered": offered,
-                 "skipped": [n for n, why in offered.items() if why is None and n not in {c.name for c in cands}],
-                 "candidates": [], "selected": [], "parameters": {}, "computed": {}, "last_round_empty": False}
+    out = RigSearch(held_out_cost=prediction_cost(rig, records, params, parity=1, noise=noise), block_s=EFFECT_BLOCK_S,
+                    min_gain=MIN_EFFECT_GAIN, offered=offered,
+                    skipped=[n for n, why in offered.items() if why is None and n not in {c.name for c in cands}])
     current = params
     by_name = {c.name: c for c in cands}
 
     def record(rnd: int, members: Sequence[RigCandidate], z: Sequence[Sequence[float]], held: dict[str, float] | None,
-               base: dict[str, float], screened: bool = False) -> dict:
+               base: dict[str, float], screened: bool = False) -> EffectTrial:
         vals: dict[str, float] = {}
         for cand, zc in zip(members, z):
             vals.update(cand.to_values(zc))
@@ -1096,20 +1104,16 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
             else _gains(held, base)
         names = [n for cand in members for n in cand.names]
         locs = list(dict.fromkeys(cand.location for cand in members))
-        out_c = {"round": rnd, "effect": "+".join(c.name for c in members), "parameter": ", ".join(names),
-                 "value": vals[names[0]], "values": vals, "location": "+".join(locs),
-                 "held_out_gain": float(gain), "held_out_gains": gains}
-        if len(members) > 1:
-            out_c["effects"] = [c.name for c in members]
-        if screened:
-            out_c["screened"] = (f"no start lowered the fit blocks' cost by {100 * REFINE_MIN_GAIN:g} %: "
-                                 "reported off, not fitted further")
-        return out_c
+        return EffectTrial(round=rnd, effect="+".join(c.name for c in members), parameter=", ".join(names),
+                           value=vals[names[0]], values=vals, location="+".join(locs), held_out_gain=float(gain),
+                           held_out_gains=gains, effects=[c.name for c in members] if len(members) > 1 else None,
+                           screened=(f"no start lowered the fit blocks' cost by {100 * REFINE_MIN_GAIN:g} %: "
+                                     "reported off, not fitted further") if screened else None)
 
     for rnd in range(1, max_effects + 1):
         base = prediction_cost(rig, records, current, parity=1, noise=noise)
         fit_base = prediction_cost(rig, records, current, parity=0, noise=noise)["total"]
-        todo = [c for c in cands if c.name not in out["selected"]]
+        todo = [c for c in cands if c.name not in out.selected]
         if not todo:
             break
         tries = ", ".join(f"{c.name} ({', '.join(c.names)})" for c in todo)
@@ -1119,43 +1123,47 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
         flat = _map(lambda cz: at(cz[0].to_values(cz[1])), points)
         grid_costs = {c.name: [v for (cc, _), v in zip(points, flat) if cc is c] for c in todo}
 
-        def candidate(c: RigCandidate) -> dict:
+        def candidate(c: RigCandidate) -> EffectTrial:
             costs = grid_costs[c.name]
             start_gain = float(1 - min(costs) / fit_base) if fit_base > 0 else 0.0
             if not start_gain >= REFINE_MIN_GAIN:
                 off = tuple(float(getattr(current, n)) for n in c.names)
-                return {**record(rnd, [c], [off], None, base, screened=True), "start_fit_gain": start_gain}
+                trial = record(rnd, [c], [off], None, base, screened=True)
+                trial.start_fit_gain = start_gain
+                return trial
             if len(c.coords) == 1:
                 z, _ = _fit_one(rig, records, current, c, parity=0, noise=noise, grid_costs=costs)
             else:
                 (z,), _ = _fit_joint(rig, records, current, [c], [c.grid[int(np.argmin(costs))]], parity=0, noise=noise,
                                      maxfev=EFFECT_MAXFEV)
             held = prediction_cost(rig, records, current.replace(**c.to_values(z)), parity=1, noise=noise)
-            return {**record(rnd, [c], [z], held, base), "start_fit_gain": start_gain}
+            trial = record(rnd, [c], [z], held, base)
+            trial.start_fit_gain = start_gain
+            return trial
 
         tried = _map(candidate, todo)
-        out["candidates"] += tried
-        best = max(tried, key=lambda c: c["held_out_gain"], default=None)
-        if best and best["held_out_gain"] >= MIN_EFFECT_GAIN:
-            c = by_name[best["effect"]]
+        out.candidates += tried
+        best = max(tried, key=lambda c: c.held_out_gain, default=None)
+        if best and best.held_out_gain >= MIN_EFFECT_GAIN:
+            c = by_name[best.effect]
             if len(c.coords) == 1:
                 z, _ = _fit_one(rig, records, current, c, parity=None, noise=noise)
             else:
-                (z,), _ = _fit_joint(rig, records, current, [c], [[best["values"][n] for n in c.names]],
+                (z,), _ = _fit_joint(rig, records, current, [c], [[best.values[n] for n in c.names]],
                                      parity=None, noise=noise, maxfev=EFFECT_MAXFEV)
             vals = c.to_values(z)
             current = current.replace(**vals)
-            out["selected"].append(c.name)
-            out["parameters"].update({n: vals[n] for n in c.names})
-            out["computed"].update({n: v for n, v in vals.items() if n not in c.names})
+            out.selected.append(c.name)
+            out.parameters.update({n: vals[n] for n in c.names})
+            out.computed.update({n: v for n, v in vals.items() if n not in c.names})
             continue
         # no effect alone: two that act together (a damping and a force lag trade against each
         # other) are fitted jointly on the even blocks and judged on the odd ones, as one candidate
-        fitted_at = {t["effect"]: [t["values"][n] for n in by_name[t["effect"]].names] for t in tried
-                     if "screened" not in t}
+        fitted_at = {t.effect: [t.values[n] for n in by_name[t.effect].names] for t in tried
+                     if t.screened is None}
         pairs = []
         for na, nb in RIG_PAIRS:
-            if na not in by_name or nb not in by_name or {na, nb} & set(out["selected"]):
+            if na not in by_name or nb not in by_name or {na, nb} & set(out.selected):
                 continue
             say(f"round {rnd}: trying {na} and {nb} together on the held-out blocks")
             members = [by_name[na], by_name[nb]]
@@ -1164,20 +1172,20 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
             vals = {k: v for m, zc in zip(members, z) for k, v in m.to_values(zc).items()}
             held = prediction_cost(rig, records, current.replace(**vals), parity=1, noise=noise)
             pairs.append(record(rnd, members, z, held, base))
-        out["candidates"] += pairs
-        best = max(pairs, key=lambda c: c["held_out_gain"], default=None)
-        if not best or best["held_out_gain"] < MIN_EFFECT_GAIN:
-            out["last_round_empty"] = True
+        out.candidates += pairs
+        best = max(pairs, key=lambda c: c.held_out_gain, default=None)
+        if not best or best.held_out_gain < MIN_EFFECT_GAIN:
+            out.last_round_empty = True
             break
-        members = [by_name[n] for n in best["effects"]]
-        z, _ = _fit_joint(rig, records, current, members, [[best["values"][n] for n in m.names] for m in members],
+        members = [by_name[n] for n in best.effects]
+        z, _ = _fit_joint(rig, records, current, members, [[best.values[n] for n in m.names] for m in members],
                           parity=None, noise=noise)
         for m, zc in zip(members, z):
             vals = m.to_values(zc)
             current = current.replace(**vals)
-            out["parameters"].update({n: vals[n] for n in m.names})
-            out["computed"].update({n: v for n, v in vals.items() if n not in m.names})
-        out["selected"] += best["effects"]
+            out.parameters.update({n: vals[n] for n in m.names})
+            out.computed.update({n: v for n, v in vals.items() if n not in m.names})
+        out.selected += best.effects
     return out
 
 
@@ -1272,7 +1280,7 @@ def _with_coef(noise: dict, corr: dict, coef: np.ndarray) -> dict:
 
 def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, noise: dict, say=lambda s: None, *,
                       n_x: int = CORRECTION_NX, stride: int = 20, ridge: Sequence[float] = CORRECTION_RIDGE,
-                      min_gain: float | None = None, max_nfev: int = 3, own: dict | None = None) -> dict:
+                      min_gain: float | None = None, max_nfev: int = 3, own: dict | None = None) -> RigCorrection:
     """The located correction at the mechanics, fitted by the prediction cost of the calibration
     (the gap 20 and 50 ms ahead, :func:`_errors`) and selected like an effect: its coefficients are
     fitted on the predictions that end in the even blocks (a ridge regression on the errors' Jacobian
@@ -1283,7 +1291,7 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
     shape is reported either way) by Gauss-Newton steps, at most ``max_nfev``, each with its own
     Jacobian. Each velocity shape alone (static + viscous, static + friction,
     the same at every gap) is fitted and judged the same way, to tell which one carries the
-    correction. JSON-ready: ``basis``, ``coef`` and ``sigma`` [N] (±1σ from the Jacobian, a lower
+    correction. A :class:`~.rig_result.RigCorrection`: ``basis``, ``coef`` and ``sigma`` [N] (±1σ from the Jacobian, a lower
     bound: overlapping horizons' errors are correlated), ``ridge``, ``held_out`` (cost per ridge
     weight and per shape), ``held_out_gain`` (> 0: better), ``selected``, ``summary``
     (:func:`correction_summary`), and the correction ready for the model in ``correction`` (None when
@@ -1350,13 +1358,6 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
     for name, cols in shapes.items():
         by_shape[name] = held(fit(lin0, even, cols, lam * cost0[0]))
     gain = 1.0 - best_cost / cost0[1] if cost0[1] > 0 else 0.0
-    out: dict = {"basis": {k: corr[k] for k in ("n_x", "x_c", "x_s", "v_s", "v_c", "p_mean")}, "shapes": list(CORRECTION_SHAPES),
-                 "ridge": float(lam), "held_out_cost_without": cost0[1],
-                 "held_out": {"by_ridge": {f"{k:g}": float(v[0]) for k, v in per_ridge.items()},
-                              "by_shape": {k: float(v) for k, v in by_shape.items()}},
-                 "held_out_gain": float(gain),
-                 "held_out_gain_by_shape": {k: float(1 - v / cost0[1]) for k, v in by_shape.items()},
-                 "min_gain": float(min_gain), "selected": bool(gain >= min_gain), "correction": None}
     # refit on every block from the even blocks' solution (also when not selected: its shape is
     # reported either way)
     allrows = np.ones(len(e0), bool)
@@ -1374,23 +1375,31 @@ def correction_search(rig: Rig, records: Sequence[RigRecord], params: PlantParam
     A = Jz.T @ Jz
     Hinv = np.linalg.pinv(A + lam * cost_all * np.eye(npar))
     cov = Hinv @ A @ Hinv * (float(e @ e) / dof)
-    out.update(coef=[float(c) for c in z * unit], sigma=[float(s) for s in np.sqrt(np.clip(np.diag(cov), 0, None)) * unit],
-               cost_before=cost_all, cost_after=float(e @ e), evaluations=evals[0])
-    if out["selected"]:
-        out["correction"] = {**corr, "coef": out["coef"]}
-    out["summary"] = correction_summary(rig, out, params)
+    coef = [float(c) for c in z * unit]
+    selected = bool(gain >= min_gain)
+    out = RigCorrection(basis={k: corr[k] for k in ("n_x", "x_c", "x_s", "v_s", "v_c", "p_mean")},
+                        shapes=list(CORRECTION_SHAPES), ridge=float(lam), held_out_cost_without=cost0[1],
+                        held_out={"by_ridge": {f"{k:g}": float(v[0]) for k, v in per_ridge.items()},
+                                  "by_shape": {k: float(v) for k, v in by_shape.items()}},
+                        held_out_gain=float(gain),
+                        held_out_gain_by_shape={k: float(1 - v / cost0[1]) for k, v in by_shape.items()},
+                        min_gain=float(min_gain), selected=selected,
+                        correction={**corr, "coef": coef} if selected else None, coef=coef,
+                        sigma=[float(s) for s in np.sqrt(np.clip(np.diag(cov), 0, None)) * unit],
+                        cost_before=cost_all, cost_after=float(e @ e), evaluations=evals[0])
+    out.summary = correction_summary(rig, out, params)
     return out
 
 
-def correction_reason(co: dict) -> str:
+def correction_reason(co: RigCorrection) -> str:
     """The reasons' sentence on the located correction: used or not, and what its shape says."""
-    s = co["summary"]
-    head = (f"the located correction at the mechanics (a force of gap and velocity) {'is used' if co['selected'] else 'is not used'}: "
-            f"held-out cost change {-100 * co['held_out_gain']:+.1f} % (at most −{100 * co['min_gain']:.0f} % needed)")
+    s = co.summary
+    head = (f"the located correction at the mechanics (a force of gap and velocity) {'is used' if co.selected else 'is not used'}: "
+            f"held-out cost change {-100 * co.held_out_gain:+.1f} % (at most −{100 * co.min_gain:.0f} % needed)")
     return head + "; " + s.get("answer", "") + " (correction.png)"
 
 
-def correction_plot(rig: Rig, co: dict, params: PlantParams, path: Path) -> Path:
+def correction_plot(rig: Rig, co: RigCorrection, params: PlantParams, path: Path) -> Path:
     """correction.png: the fitted correction force [% of the weight] against the velocity at three
     gaps (the positions' 10th, 50th and 90th percentile of the basis span), and against the gap at
     three velocities, with the catalogue's damping beside it (the velocity force in all), in the
@@ -1400,8 +1409,8 @@ def correction_plot(rig: Rig, co: dict, params: PlantParams, path: Path) -> Path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    b = co["basis"]
-    corr = {**b, "coef": co["coef"]}
+    b = co.basis
+    corr = {**b, "coef": co.coef}
     w = params.m_k * params.g
     sign = -1.0 if rig.convention == "gap" else 1.0    # record coordinate = sign * x
     v = np.linspace(-3 * b["v_s"], 3 * b["v_s"], 241)
@@ -1433,20 +1442,20 @@ def correction_plot(rig: Rig, co: dict, params: PlantParams, path: Path) -> Path
     ax[1].set_ylabel(f"force along the {rig.convention} [% of the weight]")
     ax[1].set_title("against the gap", fontsize=10)
     ax[1].legend(fontsize=7)
-    fig.suptitle(f"located correction at the mechanics ({'used' if co['selected'] else 'not used'}: held-out cost change "
-                 f"{-100 * co['held_out_gain']:+.1f} %)", fontsize=11)
+    fig.suptitle(f"located correction at the mechanics ({'used' if co.selected else 'not used'}: held-out cost change "
+                 f"{-100 * co.held_out_gain:+.1f} %)", fontsize=11)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
 
 
-def correction_summary(rig: Rig, res: dict, params: PlantParams) -> dict:
+def correction_summary(rig: Rig, res: RigCorrection, params: PlantParams) -> dict:
     """What the fitted correction says, in the record's convention and the catalogue's terms,
     averaged over the records' positions: a static force [% of the weight], a viscous constant [N·s/m] and a
     friction force [N] (positive: opposing the motion), each with ±1σ, and how much of the held-out
     cost each velocity shape alone removes (the answer to "what is the damping")."""
-    b, coef, sig = res["basis"], np.asarray(res["coef"]), np.asarray(res["sigma"])
+    b, coef, sig = res.basis, np.asarray(res.coef), np.asarray(res.sigma)
     # averaged over the records' positions (the centre of the basis may lie between two levels)
     p_at0 = np.asarray(b["p_mean"])
     w = params.m_k * params.g
@@ -1461,7 +1470,7 @@ def correction_summary(rig: Rig, res: dict, params: PlantParams) -> dict:
     out = {"static_pct_weight": 100 * c0 / w, "static_sigma_pct_weight": 100 * s0 / w,
            "viscous_N_s_per_m": -c1 / b["v_s"], "viscous_sigma": s1 / b["v_s"],
            "friction_N": -c2, "friction_sigma": s2, "weight_N": w, "k_FV": float(params.k_FV),
-           "held_out_gain_by_shape": res["held_out_gain_by_shape"]}
+           "held_out_gain_by_shape": res.held_out_gain_by_shape}
     out["answer"] = damping_answer(out)
     return out
 
@@ -1542,7 +1551,8 @@ def information(rig: Rig, r: RigRecord) -> list[str]:
     return why
 
 
-def conclude(rig: Rig, figs: list[dict], info: list[list[str]], cal: dict | None) -> tuple[str, list[str]]:
+def conclude(rig: Rig, figs: list[RigFigures], info: list[list[str]], cal: RigCalibration | None
+             ) -> tuple[str, list[str]]:
     """The verdict over the segments (``"explained"``, ``"unexplained: actuator"``, ``"unexplained:
     mechanics"``, ``"calibration failed"``, ``"too little information"``) and the reasons."""
     reasons: list[str] = []
@@ -1550,16 +1560,16 @@ def conclude(rig: Rig, figs: list[dict], info: list[list[str]], cal: dict | None
         return "calibration failed", ["no levitation segment of at least 1 s: nothing to calibrate on"]
     if all(info):
         reasons += sorted({w for ws in info for w in ws})
-        cur = [f["current"]["from_actuator"] for f in figs if f.get("current")]
+        cur = [f.current["from_actuator"] for f in figs if f.current]
         if cur:
             reasons.append(f"for what it is worth, the rig file's coil model fits the current from the actuator "
                            f"signal at {np.median(cur):.1f} % (median over segments)")
         return "too little information", reasons
-    if cal and cal.get("on_bounds"):
-        return "calibration failed", [f"calibrated {', '.join(cal['on_bounds'])} ended on a bound"]
-    cur = [f["current"]["from_actuator"] for f in figs if f.get("current")]
-    skill = [f["position"]["20 ms"]["skill_vs_stays_put"] for f in figs
-             if np.isfinite(f["position"]["20 ms"]["skill_vs_stays_put"])]
+    if cal and cal.on_bounds:
+        return "calibration failed", [f"calibrated {', '.join(cal.on_bounds)} ended on a bound"]
+    cur = [f.current["from_actuator"] for f in figs if f.current]
+    skill = [f.position["20 ms"].skill_vs_stays_put for f in figs
+             if np.isfinite(f.position["20 ms"].skill_vs_stays_put)]
     if not skill:
         return "too little information", ["the gap never moves within a segment"]
     if cur and np.median(cur) < MIN_CURRENT_FIT:
@@ -1574,54 +1584,53 @@ def conclude(rig: Rig, figs: list[dict], info: list[list[str]], cal: dict | None
     return "explained", [f"current fit {np.median(cur):.1f} %, skill at 20 ms {np.median(skill):+.2f}"]
 
 
-def comparison(calibration: Sequence[dict], validation: Sequence[dict]) -> dict:
+def comparison(calibration: Sequence[RigFigures], validation: Sequence[RigFigures]) -> RigComparison:
     """Median skill against "stays put" of the model, the black-box baseline and "constant
     velocity", per horizon, over the calibration and the validation segments (:func:`figures`)."""
-    out = {}
+    out = RigComparison()
     for role, figs in (("calibration", calibration), ("validation", validation)):
         if not figs:
             continue
-        out[role] = {"segments": len(figs)}
-        for h in figs[0]["position"]:
+        rows = {}
+        for h in figs[0].position:
             row = {}
             for who in HorizonSkill.WHO:
-                v = [f["position"][h]["skill"].get(who, np.nan) for f in figs]
+                v = [f.position[h].skill.get(who, np.nan) for f in figs]
                 v = [x for x in v if np.isfinite(x)]
                 row[who] = float(np.median(v)) if v else float("nan")
                 row[f"{who}_worst"] = float(min(v)) if v else float("nan")
-            out[role][h] = row
+            rows[h] = HorizonSkill(**row)
+        out.roles.append(Comparison(role, len(figs), rows))
     return out
 
 
-def comparison_table(comp: dict) -> list[str]:
+def comparison_table(comp: RigComparison) -> list[str]:
     """The Markdown table of :func:`comparison`: one row per role and horizon, the median skill
     (worst in brackets) of the model in closed loop and driven by the actuator signal, the black
     boxes and "constant velocity"."""
     lines = ["| records | horizon | model (closed loop, identified controller) | model (driven by the actuator signal) "
              "| black box | black box, actuator up to the start | constant velocity |", "|---|---|---|---|---|---|---|"]
-    for role, c in comp.items():
-        for h, v in c.items():
-            if h != "segments":
-                lines.append(f"| {role} ({c['segments']}) | {h} | " + " | ".join(
-                    f"{v[w]:+.2f} ({v[w + '_worst']:+.2f})" for w in HorizonSkill.WHO) + " |")
+    for c in comp.roles:
+        for h, v in c.horizons.items():
+            lines.append(f"| {c.role} ({c.segments}) | {h} | " + " | ".join(
+                f"{getattr(v, w):+.2f} ({getattr(v, w + '_worst'):+.2f})" for w in HorizonSkill.WHO) + " |")
     return lines
 
 
-def judge_against_black_box(verdict: str, comp: dict) -> tuple[str, list[str]]:
+def judge_against_black_box(verdict: str, comp: RigComparison) -> tuple[str, list[str]]:
     """A model that predicts the gap worse than the black-box baseline (median skill, on the
     validation segments when there are any, else the calibration ones) at some horizon does not
     explain the record: ``explained`` becomes ``explained in part``, and the reasons say where."""
-    role = "validation" if "validation" in comp else "calibration"
+    role = "validation" if comp.get("validation") is not None else "calibration"
     figs = comp.get(role)
     if not figs:
         return verdict, []
-    lost = [(h, v) for h, v in figs.items() if h != "segments" and np.isfinite(v["black_box"])
-            and not v["model"] > v["black_box"]]
+    lost = [(h, v) for h, v in figs.horizons.items() if np.isfinite(v.black_box) and not v.model > v.black_box]
     if not lost:
         return verdict, [f"the model beats the black-box baseline at every horizon on the {role} segments"]
-    why = ", ".join(f"{h}: model {v['model']:+.2f} against black box {v['black_box']:+.2f}" for h, v in lost)
+    why = ", ".join(f"{h}: model {v.model:+.2f} against black box {v.black_box:+.2f}" for h, v in lost)
     reasons = [f"the model predicts the gap worse than the black-box baseline fitted on the same calibration "
-               f"segments at {', '.join(h for h, _ in lost)} (median skill over {figs['segments']} {role} "
+               f"segments at {', '.join(h for h, _ in lost)} (median skill over {figs.segments} {role} "
                f"segment(s): {why}). The model's figure is its closed-loop prediction with the controller "
                "identified from the record (docs/diagnosis.md, \"A controller nobody states\"): either the model lacks "
                "something that acts on the gap's dynamics (the force or the mechanics), or the controller is not "
@@ -1638,7 +1647,7 @@ FORCE_BALANCE = (0.7, 1.4)
 MIN_CONTROLLER_FIT = 50.0
 
 
-def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> dict | None:
+def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> RigForceBalance | None:
     """How much of the ball's weight the rig's force law carries at the record's measured gap and
     current, over the samples where the ball is off both stops (1 mm clear): the 10th, 50th and
     90th percentiles of ``F/(m·g)``. A ball that levitates for seconds is held, on average, by its
@@ -1654,9 +1663,9 @@ def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> d
     step = max(1, int(lev.sum() // 2000))
     ratio = forces(p, x[lev][::step], np.clip(m.current[lev][::step], 0, None)) / (p.m_k * p.g)
     q10, q50, q90 = np.percentile(ratio, [10, 50, 90])
-    out = {"p10": float(q10), "median": float(q50), "p90": float(q90), "samples": int(lev.sum()),
-           "consistent": bool(FORCE_BALANCE[0] <= q50 <= FORCE_BALANCE[1]),
-           "current_scale_for_weight": float(1 / np.sqrt(q50)) if q50 > 0 else float("nan")}
+    out = RigForceBalance(p10=float(q10), median=float(q50), p90=float(q90), samples=int(lev.sum()),
+                          consistent=bool(FORCE_BALANCE[0] <= q50 <= FORCE_BALANCE[1]),
+                          current_scale_for_weight=float(1 / np.sqrt(q50)) if q50 > 0 else float("nan"))
     if rig.drive == "voltage" and m.drive is not None:
         # Ohm's law where the current settles (changes by under 2 % in 5 samples) and the drive
         # is inside its range: the voltage the rig file makes of the actuator signal over R·i
@@ -1670,11 +1679,11 @@ def force_balance(rig: Rig, m: Measured, params: PlantParams | None = None) -> d
         still &= (u > span[0] + 0.02 * (span[1] - span[0])) & (u < span[1] - 0.02 * (span[1] - span[0])) & (i > 0.05)
         if still.sum() >= 10:
             ohm = np.median(volts[still] / (p.R_c * i[still]))
-            out["ohm"] = {"median_V_over_Ri": float(ohm), "samples": int(still.sum())}
+            out.ohm = {"median_V_over_Ri": float(ohm), "samples": int(still.sum())}
     return out
 
 
-def controller_check(rig: Rig, m: Measured, ctl) -> dict:
+def controller_check(rig: Rig, m: Measured, ctl) -> ControllerCheck:
     """The declared controller replayed alone on the whole record's measured signals (reference,
     position, current): the NRMSE fit % of the actuator signal it gives against the recorded one.
     A cascade is also checked loop by loop when the record holds the current reference (each loop
@@ -1697,20 +1706,21 @@ def controller_check(rig: Rig, m: Measured, ctl) -> dict:
     fits = {name: nrmse_fit(u_meas, fast_loop.control(ctl, w, y, m.current, hold, x0))
             for name, (x0, hold) in starts.items()}
     start = max(fits, key=lambda k: fits[k] if np.isfinite(fits[k]) else -np.inf)
-    out = {"actuator_fit": fits[start], "start": start, "fits_by_start": fits, "loops": {}}
+    out = ControllerCheck(actuator_fit=fits[start], start=start, fits_by_start=fits)
     r_meas = m.extra.get("current_reference")
     if isinstance(ctl, Cascade) and r_meas is not None:
         r = fast_loop.control(ctl.outer, w, y, None, float(r_meas[0]))
         ui = fast_loop.control(ctl.inner, r_meas, m.current, None, float(u_meas[0]))
-        out["loops"] = {"position -> current reference": {"fit": nrmse_fit(r_meas, r),
-                                                         "rms_A": float(np.sqrt(np.mean((r - r_meas) ** 2)))},
-                        "current -> actuator": {"fit": nrmse_fit(u_meas, ui),
-                                                "rms_input_units": float(np.sqrt(np.mean((ui - u_meas) ** 2)))
-                                                * (rig.params.k_DA if rig.input_unit == "V" else 1.0)}}
+        out.loops = {"position -> current reference": {"fit": nrmse_fit(r_meas, r),
+                                                      "rms_A": float(np.sqrt(np.mean((r - r_meas) ** 2)))},
+                     "current -> actuator": {"fit": nrmse_fit(u_meas, ui),
+                                             "rms_input_units": float(np.sqrt(np.mean((ui - u_meas) ** 2)))
+                                             * (rig.params.k_DA if rig.input_unit == "V" else 1.0)}}
     return out
 
 
-def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams, ctl, horizon_s: float = 0.020) -> dict:
+def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams, ctl, horizon_s: float = 0.020
+                        ) -> ClosedLoopFigures:
     """The declared controller replayed in closed loop with the model, by prediction: the filter
     follows the segment, and from every sample the model and the controller run ``horizon_s``
     ahead on their own predicted readings and current. Fit % of the gap and of the actuator signal."""
@@ -1723,21 +1733,22 @@ def closed_loop_figures(rig: Rig, r: RigRecord, m: Measured, params: PlantParams
     o = fast_loop.predict(_start(rig, r, params), ctl, w, r.y, r.u, float(r.u[0]), q_force=nz["q_force"],
                      f_force=nz["f_force"], r_sensor=nz["r_sensor"], horizon=h)
     ok = _valid(len(r.y), h, r.ts) & np.isfinite(o["y_pred"]) & np.isfinite(o["u_pred"])
-    return {"label": r.label, "horizon_s": horizon_s, "gap_fit": nrmse_fit(r.y[ok], o["y_pred"][ok]),
-            "actuator_fit": nrmse_fit(r.u[ok], o["u_pred"][ok])}
+    return ClosedLoopFigures(label=r.label, horizon_s=horizon_s, gap_fit=nrmse_fit(r.y[ok], o["y_pred"][ok]),
+                             actuator_fit=nrmse_fit(r.u[ok], o["u_pred"][ok]))
 
 
 # ----------------------------------------------------------------------------- the commands
 
 def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Sequence[Measured] = (),
         per_record: bool = True, progress=None, json_name: str = "diagnosis.json", controller=None,
-        effects: bool = True, second_force_lag: str | None = "default") -> dict:
+        effects: bool = True, second_force_lag: str | None = "default") -> RigRun:
     """The real-rig path's stages (:func:`maglev_cosim.diagnosis.diagnose` runs them): calibrates one
     parameter set on ``records`` (all their levitation segments), reports every record's figures
     before and after, each record's own calibration (the spread between records: drift is a
     finding), the fit on the ``validate`` records not used, the verdict, and writes ``report.md``,
-    ``report.html``, the plots and the calibrated FMU into ``out``; the result dict names
-    ``json_name`` among the files, which the caller writes (from the typed result). Every record is
+    ``report.html``, the plots and the calibrated FMU into ``out``; the result (a
+    :class:`~.rig_result.RigRun`) names ``json_name`` among the files, which the caller writes (from the typed
+    result). Every record is
     cut into segments and checked before anything is written. ``controller``: a declared controller
     (:class:`maglev_cosim.loop.controllers.ControllerFile`), checked against each record and replayed
     in closed loop (:func:`controller_check`, :func:`closed_loop_figures`). ``effects``: try the
@@ -1760,7 +1771,7 @@ def run(rig: Rig, records: Sequence[Measured], out: str | Path, *, validate: Seq
 
 def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Sequence[Measured], per_record: bool,
          progress, json_name: str, controller, effects: bool, second_force_lag: str | None,
-         background: ThreadPoolExecutor) -> dict:
+         background: ThreadPoolExecutor) -> RigRun:
     """:func:`run`'s stages (with one BLAS thread; ``background``: a thread for the work beside them)."""
     mode = SECOND_FORCE_LAG_FIT if second_force_lag == "default" else second_force_lag
     if mode not in (None, "joint", "after"):
@@ -1770,14 +1781,14 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
     held = [(m, prepare(rig, m)) for m in validate]
     segs = [r for _, rs in train for r in rs]
     out = Path(out)
-    result: dict = {"rig": rig.name, "rig_file": str(rig.path), "records": [], "validation": [],
-                    "horizons_s": list(HORIZONS_S)}
+    result = RigRun(rig=rig.name, rig_file=str(rig.path), horizons_s=list(HORIZONS_S))
     cal = None
     params = rig.params
     info = [information(rig, r) for r in segs]
     lacking = {id(r): why for r, why in zip(segs, info)}
     noise = noise_defaults(rig, params)
     fit_on = [r for r, why in zip(segs, info) if not why]
+    result.fit_segments = len(fit_on)
     mech = mechanics_names(params)
 
     def fit_black_box() -> dict:
@@ -1802,18 +1813,18 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         # disturbance model on the gap predicted 20 and 50 ms ahead
         say(f"calibrating the coil ({', '.join(COIL_FIT[rig.drive])}) on the current from the actuator signal")
         params, coil = calibrate_coil(rig, fit_on, params, names=COIL_FIT[rig.drive])
-        result["coil_calibration"] = coil
+        result.coil_calibration = coil
         say(f"calibrating {', '.join(mech)} and the disturbance model on {len(fit_on)} segment(s)")
         params, cal = calibrate(rig, fit_on, params, names=mech)
-        noise = cal["noise"]
-        say(f"calibrated in {cal['evaluations']} evaluations: cost {cal['cost_before']:.4g} -> {cal['cost_after']:.4g}")
+        noise = cal.noise
+        say(f"calibrated in {cal.evaluations} evaluations: cost {cal.cost_before:.4g} -> {cal.cost_after:.4g}")
     if cal is not None and effects:
         second = tuple(SECOND_FORCE_LAG) if mode else ()
         # the second force lag is the catalogue's eddy_lag: never tried by the effect search when the
         # calibration fits it (RIG_LEFT_OUT leaves it out of the search in any case, for now)
-        result["effects"] = effect_search(rig, fit_on, params, say, noise=noise, skip=mech + ("T_d",) + second)
-        chosen = list(result["effects"]["parameters"])
-        params = params.replace(**result["effects"]["parameters"], **result["effects"]["computed"])
+        search = result.effects = effect_search(rig, fit_on, params, say, noise=noise, skip=mech + ("T_d",) + second)
+        chosen = list(search.parameters)
+        params = params.replace(**search.parameters, **search.computed)
         joint = second if mode == "joint" else ()
         if chosen or joint:
             # the selected effects refitted together with the mechanics and the disturbance model:
@@ -1821,16 +1832,16 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
             # (and "joint": the second force lag with them, sharing the force's time scale with T_F)
             say(f"refitting {', '.join(mech + tuple(chosen) + joint)} and the disturbance model together")
             params, cal = calibrate(rig, fit_on, params, names=mech + tuple(chosen) + joint, noise=noise)
-            noise = cal["noise"]
-            result["effects"]["parameters"] = {n: cal["values"][n] for n in chosen}
+            noise = cal.noise
+            search.parameters = {n: cal.values[n] for n in chosen}
         if mode == "after":
             say(f"fitting the second force lag ({', '.join(second)}) and the disturbance model, the rest held")
             params, cal = calibrate(rig, fit_on, params, names=second, noise=noise)
-            noise = cal["noise"]
+            noise = cal.noise
         if second:
-            result["second_force_lag"] = {"mode": mode, "values": {n: cal["values"][n] for n in second},
-                                          "sigma": {n: cal["sigma"][n] for n in second},
-                                          "on_bounds": [n for n in cal["on_bounds"] if n in second]}
+            result.second_force_lag = {"mode": mode, "values": {n: cal.values[n] for n in second},
+                                       "sigma": {n: cal.sigma[n] for n in second},
+                                       "on_bounds": [n for n in cal.on_bounds if n in second]}
     own_models: dict = {}
     if cal is not None and effects:
         # where the catalogue explains too little: the located correction at the mechanics, a force
@@ -1838,12 +1849,12 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         # segment's own model (its coil and force gain) as its figures use it
         own_models = dict(zip(map(id, fit_on), _map(lambda r: _own_coil(rig, r, params, cal), fit_on)))
         say("trying the located correction at the mechanics (a force of gap and velocity) on the held-out blocks")
-        result["correction"] = correction_search(rig, fit_on, params, noise, say,
-                                                 own={k: v[0] for k, v in own_models.items()})
-        if result["correction"]["selected"]:
-            noise = {**noise, "correction": result["correction"]["correction"]}
-    result["calibration"] = cal
-    result["disturbance_model"] = {k: v for k, v in noise.items() if k != "correction"}
+        co = result.correction = correction_search(rig, fit_on, params, noise, say,
+                                                   own={k: v[0] for k, v in own_models.items()})
+        if co.selected:
+            noise = {**noise, "correction": co.correction}
+    result.calibration = cal
+    result.disturbance_model = {k: v for k, v in noise.items() if k != "correction"}
     black_box = {}
     if fit_on:
         say(f"fitting the black-box baseline (direct ridge predictors at {', '.join(f'{h * 1e3:g}' for h in HORIZONS_S)}"
@@ -1851,32 +1862,31 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         try:
             black_box = black_box_job.result()
         except ValueError as e:
-            result["black_box_error"] = str(e)
-        result["black_box"] = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
-                                                    "features": len(p.coef)}
-                                  for hs, p in black_box.items() if not isinstance(hs, tuple)}
+            result.black_box_error = str(e)
+        result.black_box = {f"{hs * 1e3:g} ms": {"ridge_alpha": p.alpha, "samples": p.samples,
+                                                 "features": len(p.coef)}
+                            for hs, p in black_box.items() if not isinstance(hs, tuple)}
 
-    def calibration_segment(r: RigRecord) -> dict:
+    def calibration_segment(r: RigRecord) -> RigSegment:
         say(f"figures of {r.label}")
         pr, own = own_models.get(id(r)) or _own_coil(rig, r, params, cal)
-        seg = {"label": r.label, "before": None, "after": figures(rig, r, pr, noise, black_box), "own_coil": own}
+        seg = RigSegment(label=r.label, after=figures(rig, r, pr, noise, black_box), own_coil=own)
         if per_record and cal and len(segs) > 1 and not lacking[id(r)]:
             # the force law's gain on this record alone (the rest held): its spread between
             # records is a finding, not noise
             gain = mech[0]
             _, own_info = calibrate(rig, [r], pr, names=(gain,), noise=noise, fit_noise=False, max_evaluations=15)
-            seg["own_calibration"] = {**(own or {}), gain: own_info["values"][gain]}
+            seg.own_calibration = {**(own or {}), gain: own_info.values[gain]}
         frf = current_to_position(rig, r, params)
-        seg["frequency_response"] = frf.get("summary")
+        seg.frequency_response = frf.get("summary")
         return seg
 
-    def validation_segment(item: tuple[Measured, RigRecord, dict | None]) -> dict:
+    def validation_segment(item: tuple[Measured, RigRecord, dict | None]) -> RigValidationSegment:
         m, r, fb = item
         say(f"validation figures of {r.label}")
         pr, own = _own_coil(rig, r, params, cal)
-        return {"file": str(m.path), "label": r.label, "before": None,
-                "after": figures(rig, r, pr, noise, black_box), "warnings": m.warnings,
-                "force_balance_calibrated": fb, "own_coil": own}
+        return RigValidationSegment(file=str(m.path), label=r.label, after=figures(rig, r, pr, noise, black_box),
+                                    warnings=m.warnings, force_balance_calibrated=fb, own_coil=own)
 
     def job(w: tuple[str, object]):
         kind, x = w
@@ -1903,212 +1913,211 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
     n_seg = len(every_seg)
     again = iter(done[n_seg:])
     for d, f, t in zip(done[:n_seg], before_jobs, taken):
-        d["before"] = next(again) if t else f.result()
-    cal_segs, result["validation"] = done[: len(segs)], done[len(segs): n_seg]
+        d.before = next(again) if t else f.result()
+    cal_segs, result.validation = done[: len(segs)], done[len(segs): n_seg]
     figs_after = []
     k = 0
     for m, rs in train:
-        entry = {"file": str(m.path), "label": m.label, "warnings": m.warnings, "segments": [],
-                 "force_balance": force_balance(rig, m)}
+        entry = RigRecordResult(file=str(m.path), label=m.label, warnings=m.warnings, force_balance=force_balance(rig, m))
         if controller is not None:
             say(f"replaying the declared controller {controller.name} on {m.label}")
-            entry["controller_check"] = controller_check(rig, m, controller.controller)
-            entry["closed_loop"] = [closed_loop_figures(rig, r, m, params, controller.controller) for r in rs]
+            entry.controller_check = controller_check(rig, m, controller.controller)
+            entry.closed_loop = [closed_loop_figures(rig, r, m, params, controller.controller) for r in rs]
         for _ in rs:
             seg = cal_segs[k]
             k += 1
-            entry["segments"].append(seg)
-            figs_after.append(seg["after"])
-        result["records"].append(entry)
+            entry.segments.append(seg)
+            figs_after.append(seg.after)
+        result.records.append(entry)
     verdict, reasons = conclude(rig, figs_after, info, cal)
-    result["comparison"] = comparison(figs_after, [v["after"] for v in result["validation"]])
-    verdict, more = judge_against_black_box(verdict, result["comparison"])
+    result.comparison = comparison(figs_after, [v.after for v in result.validation])
+    verdict, more = judge_against_black_box(verdict, result.comparison)
     reasons += more
-    if verdict == "explained" and not result.get("effects", {}).get("selected"):
+    if verdict == "explained" and not (result.effects and result.effects.selected):
         verdict = "no effect"   # the CE152 diagnosis's word: the calibrated model alone explains the record
-    every = figs_after + [v["after"] for v in result["validation"]]
-    drifting = [f for f in every if f.get("drift", {}).get("significant")]
+    every = figs_after + [v.after for v in result.validation]
+    drifting = [f for f in every if f.drift is not None and f.drift.significant]
     if drifting:
         reasons.append(f"the random force the filter estimates drifts during the run in {len(drifting)} of {len(every)} "
                        "segment(s), beyond its 2σ (change from the first to the last second, % of the weight): "
-                       + "; ".join(f"{f['label']} {f['drift']['change_pct_weight']:+.1f} ± "
-                                   f"{f['drift']['change_two_sigma']:.1f}" for f in drifting)
+                       + "; ".join(f"{f.label} {f.drift.change_pct_weight:+.1f} ± "
+                                   f"{f.drift.change_two_sigma:.1f}" for f in drifting)
                        + ": a force or a gain that changes during the run (drift.png)")
-    heating = [(x["label"], x["own_coil"]) for x in [s for e in result["records"] for s in e["segments"]]
-               + result["validation"] if (x.get("own_coil") or {}).get("kappa_R_sigma")]
+    heating = [(x.label, x.own_coil) for x in [*(s for e in result.records for s in e.segments), *result.validation]
+               if (x.own_coil or {}).get("kappa_R_sigma")]
     if heating:
         found = [(lb, c) for lb, c in heating if abs(c["kappa_R"]) > 2 * c["kappa_R_sigma"]]
         reasons.append(f"the coil resistance changes during the run beyond its 2σ in {len(found)} of {len(heating)} "
                        "segment(s) (kappa_R, each segment's own coil, %/s ± 2σ; its model uses it only beyond 2σ): "
                        + "; ".join(f"{lb} {100 * c['kappa_R']:+.3f} ± {200 * c['kappa_R_sigma']:.3f}" for lb, c in heating)
                        + ": the winding warming (copper: +0.39 %/K) or cooling")
-    held_skill = [v["after"]["position"]["20 ms"]["skill_vs_stays_put"] for v in result["validation"]]
+    held_skill = [v.after.position["20 ms"].skill_vs_stays_put for v in result.validation]
     held_skill = [k for k in held_skill if np.isfinite(k)]
     if held_skill and np.median(held_skill) < MIN_SKILL:
         reasons.append(f"the calibration does not carry over to the {len(held_skill)} validation segment(s): their gap "
                        f"20 ms ahead has median skill {np.median(held_skill):+.2f} against 'stays put' ({MIN_SKILL:g} "
                        f"needed; best {max(held_skill):+.2f}, worst {min(held_skill):+.2f}): the verdict holds for the "
                        "calibration records only")
-        own = [fb["median"] for fb in (force_balance(rig, m, params) for m, _ in train) if fb]
-        for v in result["validation"]:
-            k = v["after"]["position"]["20 ms"]["skill_vs_stays_put"]
+        own = [fb.median for fb in (force_balance(rig, m, params) for m, _ in train) if fb]
+        for v in result.validation:
+            k = v.after.position["20 ms"].skill_vs_stays_put
             if not (np.isfinite(k) and k < MIN_SKILL):
                 continue
             why = []
-            fb = v["force_balance_calibrated"]
-            if fb and own and not min(own) - 0.02 <= fb["median"] <= max(own) + 0.02:
-                why.append(f"the calibrated force law carries {100 * fb['median']:.0f} % of the weight here against "
+            fb = v.force_balance_calibrated
+            if fb and own and not min(own) - 0.02 <= fb.median <= max(own) + 0.02:
+                why.append(f"the calibrated force law carries {100 * fb.median:.0f} % of the weight here against "
                            f"{100 * min(own):.0f}-{100 * max(own):.0f} % on the calibration records (the force gain "
                            "differs between runs)")
-            cur = v["after"]["current"]
+            cur = v.after.current
             if cur and cur["from_actuator"] < MIN_CURRENT_FIT:
                 why.append(f"its coil current from the actuator signal fits only {cur['from_actuator']:.1f} %")
-            why += [w for w in v["warnings"] if "Kalman" in w]
+            why += [w for w in v.warnings if "Kalman" in w]
             if why:
-                reasons.append(f"{v['label']} (skill {k:+.2f}): " + "; ".join(why))
-    co = result.get("correction")
+                reasons.append(f"{v.label} (skill {k:+.2f}): " + "; ".join(why))
+    co = result.correction
     if co:
         reasons.append(correction_reason(co))
-    ef = result.get("effects")
+    ef = result.effects
     if ef:
-        last = max(c["round"] for c in ef["candidates"])
-        tried = ", ".join(f"{c['effect']} (off: no start gained {100 * REFINE_MIN_GAIN:g} %)" if "screened" in c
-                          else f"{c['effect']} ({c['parameter']} = {_values(c)}) {-100 * c['held_out_gain']:+.1f} %"
-                          for c in ef["candidates"] if c["round"] == last)
-        if ef["selected"]:
-            reasons.append(f"effects found: {', '.join(ef['selected'])} ("
-                           + ", ".join(f"{k} = {v:.4g}" for k, v in ef["parameters"].items()) + ")")
-        if ef.get("last_round_empty"):   # the last round selected nothing
-            reasons.append(("none of the remaining effects" if ef["selected"] else "no effect of the catalogue")
+        last = max(c.round for c in ef.candidates)
+        tried = ", ".join(f"{c.effect} (off: no start gained {100 * REFINE_MIN_GAIN:g} %)" if c.screened is not None
+                          else f"{c.effect} ({c.parameter} = {_values(c)}) {-100 * c.held_out_gain:+.1f} %"
+                          for c in ef.candidates if c.round == last)
+        if ef.selected:
+            reasons.append(f"effects found: {', '.join(ef.selected)} ("
+                           + ", ".join(f"{k} = {v:.4g}" for k, v in ef.parameters.items()) + ")")
+        if ef.last_round_empty:   # the last round selected nothing
+            reasons.append(("none of the remaining effects" if ef.selected else "no effect of the catalogue")
                            + f" explains enough on the held-out blocks: changes of the prediction cost (gap 20 and 50 ms, current 20 ms ahead) "
                            f"{tried} (at most −{100 * MIN_EFFECT_GAIN:.0f} % needed)")
-    for e in result["records"]:
-        fb = e["force_balance"]
-        if fb and not fb["consistent"]:
-            reasons.append(f"{e['label']}: the rig file's force law carries {100 * fb['median']:.0f} % of the ball's "
-                           f"weight at the recorded gap and current (median over {fb['samples']} levitating samples; "
-                           f"10-90 %: {100 * fb['p10']:.0f}-{100 * fb['p90']:.0f} %): its force constant, or the "
+    for e in result.records:
+        fb = e.force_balance
+        if fb and not fb.consistent:
+            reasons.append(f"{e.label}: the rig file's force law carries {100 * fb.median:.0f} % of the ball's "
+                           f"weight at the recorded gap and current (median over {fb.samples} levitating samples; "
+                           f"10-90 %: {100 * fb.p10:.0f}-{100 * fb.p90:.0f} %): its force constant, or the "
                            "record's current or position scale, contradicts the record"
-                           + (f"; the current would have to be {fb['current_scale_for_weight']:.2f}x the recorded "
-                              "one to carry the weight" if np.isfinite(fb["current_scale_for_weight"]) else ""))
-        ohm = (fb or {}).get("ohm")
+                           + (f"; the current would have to be {fb.current_scale_for_weight:.2f}x the recorded "
+                              "one to carry the weight" if np.isfinite(fb.current_scale_for_weight) else ""))
+        ohm = fb.ohm if fb else None
         if ohm and not 0.7 <= ohm["median_V_over_Ri"] <= 1.4:
-            both = (fb and not fb["consistent"]
-                    and (ohm["median_V_over_Ri"] > 1) == (fb["current_scale_for_weight"] > 1))
-            reasons.append(f"{e['label']}: where the current settles, the rig file's coil voltage is "
+            both = (fb and not fb.consistent
+                    and (ohm["median_V_over_Ri"] > 1) == (fb.current_scale_for_weight > 1))
+            reasons.append(f"{e.label}: where the current settles, the rig file's coil voltage is "
                            f"{ohm['median_V_over_Ri']:.2f}x R times the recorded current (median over {ohm['samples']} "
                            "samples; Ohm's law wants 1)"
                            + (f"; both checks find the recorded current too {'small' if ohm['median_V_over_Ri'] > 1 else 'large'} "
-                              f"for the rig file ({fb['current_scale_for_weight']:.1f}x for the weight, "
+                              f"for the rig file ({fb.current_scale_for_weight:.1f}x for the weight, "
                               f"{ohm['median_V_over_Ri']:.1f}x for Ohm's law): the record's current scale, or the rig "
                               "file's force constant and resistance, are wrong" if both else ""))
     if controller is not None:
-        result["controller"] = {"name": controller.name, "file": str(controller.path), "type": controller.kind}
-        for e in result["records"]:
-            cc = e["controller_check"]
-            loops = [v["fit"] for v in cc["loops"].values()]
-            best = max(cc["actuator_fit"], min(loops) if loops else -np.inf)
+        result.controller = {"name": controller.name, "file": str(controller.path), "type": controller.kind}
+        for e in result.records:
+            cc = e.controller_check
+            loops = [v["fit"] for v in cc.loops.values()]
+            best = max(cc.actuator_fit, min(loops) if loops else -np.inf)
             if best >= MIN_CONTROLLER_FIT:
-                reasons.append(f"{e['label']}: the declared controller {controller.name} reproduces the recorded "
-                               f"actuator signal (fit {cc['actuator_fit']:.1f} % from {cc['start']}"
-                               + "".join(f"; {k} {v['fit']:.1f} %" for k, v in cc["loops"].items()) + ")")
+                reasons.append(f"{e.label}: the declared controller {controller.name} reproduces the recorded "
+                               f"actuator signal (fit {cc.actuator_fit:.1f} % from {cc.start}"
+                               + "".join(f"; {k} {v['fit']:.1f} %" for k, v in cc.loops.items()) + ")")
             else:
-                reasons.append(f"{e['label']}: the declared controller {controller.name} does not reproduce the "
-                               f"recorded actuator signal (fit {cc['actuator_fit']:.1f} %, from rest or settled): the "
+                reasons.append(f"{e.label}: the declared controller {controller.name} does not reproduce the "
+                               f"recorded actuator signal (fit {cc.actuator_fit:.1f} %, from rest or settled): the "
                                "declaration is not "
                                "the controller that ran; the figures above rest on the measured actuator signal "
                                "(the unknown-controller path) and do not depend on it")
-    result["verdict"], result["reasons"] = verdict, reasons
-    own = [s["own_calibration"] for e in result["records"] for s in e["segments"] if "own_calibration" in s]
-    coils = [x["own_coil"] for x in [s for e in result["records"] for s in e["segments"]] + result["validation"]
-             if x.get("own_coil")]
+    result.verdict, result.reasons = verdict, reasons
+    own = [s.own_calibration for e in result.records for s in e.segments if s.own_calibration is not None]
+    coils = [x.own_coil for x in [*(s for e in result.records for s in e.segments), *result.validation] if x.own_coil]
     if len(coils) > 1:
-        result["coil_drift"] = _spread(coils)
+        result.coil_drift = _spread(coils)
     if len(own) > 1:
-        result["spread"] = _spread(own)
-    result["parameters"] = {**{n: float(getattr(params, n)) for n in (*COIL_FIT[rig.drive], *mech)},
-                            **result.get("effects", {}).get("parameters", {}),
-                            **result.get("second_force_lag", {}).get("values", {})}
+        result.spread = _spread(own)
+    result.parameters = {**{n: float(getattr(params, n)) for n in (*COIL_FIT[rig.drive], *mech)},
+                         **(result.effects.parameters if result.effects else {}),
+                         **(result.second_force_lag or {}).get("values", {})}
     out.mkdir(parents=True, exist_ok=True)
     plots = (_plots(rig, segs[:1], params, out, noise, black_box,
-                    [*figs_after, *(v["after"] for v in result["validation"])]) if segs else [])
-    if result.get("correction"):
-        plots.append(correction_plot(rig, result["correction"], params, out / "correction.png"))
-    result.update(_shared_keys(result, train, held))
+                    [*figs_after, *(v.after for v in result.validation)]) if segs else [])
+    if result.correction is not None:
+        plots.append(correction_plot(rig, result.correction, params, out / "correction.png"))
+    _shared_keys(result, train, held)
     written = [out / json_name, out / "report.md", out / "report.html", *plots]
     (out / "report.md").write_text(_markdown(result, plots))
     write_html(out / "report.md", out / "report.html")
     if verdict not in ("calibration failed", "too little information"):
         fmu_path = out / "maglev_calibrated.fmu"
-        result["calibrated_fmu"] = _calibrated_rig_fmu(rig, result, params, train, out, fmu_path)
+        result.calibrated_fmu = _calibrated_rig_fmu(rig, result, params, train, out, fmu_path)
         written.insert(3, fmu_path)
     else:
-        result["calibrated_fmu"] = None   # nothing calibrated worth an FMU: the verdict says why
-    result["written"] = [str(p) for p in written]
+        result.calibrated_fmu = None   # nothing calibrated worth an FMU: the verdict says why
+    result.written = [str(p) for p in written]
     return result
 
 
-def _shared_keys(result: dict, train, held) -> dict:
-    """The keys a real rig's result shares with the CE152 diagnosis (:data:`.result.SHARED_KEYS`), from
-    its own figures: ``fit`` and ``fit_before`` the median NRMSE fit % of the gap reading
+def _shared_keys(result: RigRun, train, held) -> None:
+    """Fills in the fields a real rig's result shares with the CE152 diagnosis (:data:`.result.SHARED_KEYS`),
+    from its own figures: ``fit`` and ``fit_before`` the median NRMSE fit % of the gap reading
     (``y``) and of the current (``current``) predicted 20 ms ahead, beside ``free_run: None``
     (an unknown controller is never run free: the plant is open-loop unstable); ``before`` and
     ``after`` the RMS of the 20 ms prediction error of the reading [MU]; ``location_evidence``
     the best held-out cost change per location among the catalogue's effects."""
-    segs = [s for e in result["records"] for s in e["segments"]]
+    segs = [s for e in result.records for s in e.segments]
 
-    def fit(key: str) -> dict:
-        y = [s[key]["position"]["20 ms"]["model"] for s in segs]
-        cur = [s[key]["current"]["20 ms"] for s in segs if s[key].get("current")]
-        return {"free_run": None, "prediction": {"horizon_s": 0.020, "y": float(np.median(y)) if y else None,
-                                                 "current": float(np.median(cur)) if cur else None}}
+    def fit(key: str) -> Fit:
+        figs = [getattr(s, key) for s in segs]
+        y = [f.position["20 ms"].model for f in figs]
+        cur = [f.current["20 ms"] for f in figs if f.current]
+        return Fit(None, PredictionFit(0.020, float(np.median(y)) if y else None,
+                                       float(np.median(cur)) if cur else None, "current"))
 
-    def rms(key: str) -> dict:
-        v = [s[key]["position"]["20 ms"].get("rms_y") for s in segs]
+    def rms(key: str) -> Residual:
+        v = [getattr(s, key).position["20 ms"].rms_y for s in segs]
         v = [x for x in v if x is not None]
-        return {"rms_y": float(np.sqrt(np.mean(np.square(v)))) if v else None, "horizon_s": 0.020}
+        return Residual(float(np.sqrt(np.mean(np.square(v)))) if v else None, horizon_s=0.020)
 
-    evidence: dict = {}
-    for c in (result.get("effects") or {}).get("candidates", []):
-        loc = c["location"]
-        change = -c["held_out_gain"]
-        if loc not in evidence or change < evidence[loc]["held_out_cost_change"]:
-            evidence[loc] = {"effect": c["effect"], "held_out_cost_change": float(change)}
-    warnings = sorted({w for m, _ in [*train, *held] for w in m.warnings})
-    return {"fit": fit("after") if segs else None, "fit_before": fit("before") if segs else None,
-            "warnings": warnings, "selected": list((result.get("effects") or {}).get("selected", [])),
-            "uncertainties": (result.get("calibration") or {}).get("sigma", {}),
-            "before": rms("before") if segs else None, "after": rms("after") if segs else None,
-            "location_evidence": evidence}
+    evidence: dict[str, LocationEvidence] = {}
+    search = result.effects
+    for c in search.candidates if search else []:
+        change = -c.held_out_gain
+        if c.location not in evidence or change < evidence[c.location].held_out_cost_change:
+            evidence[c.location] = LocationEvidence(c.location, c.effect, float(change))
+    result.warnings = sorted({w for m, _ in [*train, *held] for w in m.warnings})
+    result.fit, result.fit_before = (fit("after"), fit("before")) if segs else (None, None)
+    result.selected = list(search.selected if search else [])
+    result.uncertainties = result.calibration.sigma if result.calibration else {}
+    result.before, result.after = (rms("before"), rms("after")) if segs else (None, None)
+    result.location_evidence = list(evidence.values())
 
 
-def _calibrated_rig_fmu(rig: Rig, result: dict, params: PlantParams, train, out: Path, path: Path) -> dict:
+def _calibrated_rig_fmu(rig: Rig, result: RigRun, params: PlantParams, train, out: Path, path: Path) -> CalibratedFmu:
     """The rig's FMU with the calibrated parameters as start values, with its provenance in
     ``resources/calibration.json`` (records and their sha256, parameters with units and σ, the
     verdict, the comparison with the black box) and the report as ``documentation/``."""
     units = {n: u for n, (_, _, _, u) in fast.param_table().items()}
-    sigma = result.get("uncertainties", {})
+    sigma = result.uncertainties
     provenance = {
         "format": "maglev-cosim calibration 1",
         "rig": rig.name,
         "records": [{"file": Path(m.path).name, "sha256": hashlib.sha256(Path(m.path).read_bytes()).hexdigest()}
                     for m, _ in train],
-        "verdict": result["verdict"],
-        "effects": result["selected"],
+        "verdict": result.verdict,
+        "effects": result.selected,
         "parameters": {n: {"value": float(v), "unit": units.get(n), **({"sigma": sigma[n]} if n in sigma else {})}
-                       for n, v in result["parameters"].items()},
-        "disturbance_model": result.get("disturbance_model"),
-        "comparison": result.get("comparison"),
+                       for n, v in result.parameters.items()},
+        "disturbance_model": result.disturbance_model,
+        "comparison": result.comparison,
     }
     docs = {"index.html": (out / "report.html").read_bytes(), "report.md": (out / "report.md").read_bytes()}
     calibrated_fmu(ensure_fmu(None), path, params.to_start_values(),
                    resources={"rig.toml": rig.path.read_bytes(),
                               "calibration.json": (json.dumps(finite(provenance), indent=2) + "\n").encode()},
                    description=f"{rig.description}, calibrated on {', '.join(r['file'] for r in provenance['records'])} "
-                               f"(maglev-cosim; verdict {result['verdict']}; resources/calibration.json)",
+                               f"(maglev-cosim; verdict {result.verdict}; resources/calibration.json)",
                    model_name=f"{rig.name} magnetic levitation, calibrated", documentation=docs,
                    source_sha256=hashlib.sha256("".join(r["sha256"] for r in provenance["records"]).encode()).hexdigest())
-    return {"file": str(path), "records": provenance["records"]}
+    return CalibratedFmu(str(path), [RecordRef(r["file"], r.get("sha256")) for r in provenance["records"]])
 
 
 def _spread(values: Sequence[dict]) -> dict:
@@ -2125,7 +2134,8 @@ def _spread(values: Sequence[dict]) -> dict:
     return out
 
 
-def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> tuple[PlantParams, dict | None]:
+def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: RigCalibration | None
+              ) -> tuple[PlantParams, dict[str, float] | None]:
     """The model of one segment with its own coil (:func:`calibrate_coil` on the segment alone: a
     resistance that differs between runs and warms during the run, ``kappa_R``, used only where its
     estimate lies beyond its 2σ of 0, a drive gain that differs between runs) and its own force gain
@@ -2135,15 +2145,15 @@ def _own_coil(rig: Rig, r: RigRecord, params: PlantParams, cal: dict | None) -> 
     if cal is None or r.current is None:
         return params, None
     p, info = calibrate_coil(rig, [r], params)
-    values = dict((info or {}).get("values") or {})
+    values = dict(info.values) if info else {}
     if "kappa_R" in values:   # the heating's drift is a finding: with its ±1σ
-        sigma = float(info["sigma"]["kappa_R"])
+        sigma = float(info.sigma["kappa_R"])
         if not abs(values["kappa_R"]) > 2 * sigma:
             # within its 2σ of none: the segment's model goes without it (the rest refitted so), the
             # estimate is still reported
             p, info = calibrate_coil(rig, [r], params.replace(kappa_R=0.0),
                                      names=[n for n in COIL[rig.drive] if n != "kappa_R"])
-            values = {**values, **info["values"]}
+            values = {**values, **info.values}
         values["kappa_R_sigma"] = sigma
     gain = mechanics_names(p)[0]
     factor = own_force_gain(rig, r, p)
@@ -2168,30 +2178,29 @@ def own_force_gain(rig: Rig, r: RigRecord, params: PlantParams) -> float:
     return float(1.0 / ratio) if ratio > 0 else float("nan")
 
 
-def _values(c: dict) -> str:
+def _values(c: EffectTrial) -> str:
     """A candidate's fitted value, or values (several coordinates, a pair of effects): those of its
     parameters (not the values it computed from them)."""
-    values = c.get("values", {c["parameter"]: c["value"]})
-    return ", ".join(f"{values[n]:.4g}" for n in c["parameter"].split(", "))
+    return ", ".join(f"{c.values[n]:.4g}" for n in c.parameter.split(", "))
 
 
-def _row(label: str, f: dict) -> str:
-    cur = f.get("current") or {}
+def _row(label: str, f: RigFigures) -> str:
+    cur = f.current or {}
     cells = [label, f"{cur.get('from_actuator', float('nan')):.1f}"]
     for h in ("5 ms", "20 ms", "50 ms"):
-        p = f["position"][h]
-        bb = p["skill"].get("black_box")
-        cells.append(f"{p['model']:.1f} / {p['stays_put']:.1f} / {p['constant_velocity']:.1f} "
-                     f"({p['skill_vs_stays_put']:+.2f}" + (f"; black box {bb:+.2f})" if bb is not None else ")"))
+        p = f.position[h]
+        bb = p.skill.get("black_box")
+        cells.append(f"{p.model:.1f} / {p.stays_put:.1f} / {p.constant_velocity:.1f} "
+                     f"({p.skill_vs_stays_put:+.2f}" + (f"; black box {bb:+.2f})" if bb is not None else ")"))
     cells.append(f"{cur.get('20 ms', float('nan')):.1f}")
     return "| " + " | ".join(cells) + " |"
 
 
-def _markdown(res: dict, plots: list[Path]) -> str:
+def _markdown(res: RigRun, plots: list[Path]) -> str:
     head = ("| segment | current from actuator, fit % | gap 5 ms: model / stays put / const. velocity (skill; black box's) "
             "| 20 ms | 50 ms | current 20 ms ahead, fit % |\n|---|---|---|---|---|---|")
-    lines = [f"# Rig {res['rig']}: measured records", "", f"**Verdict: {res['verdict']}**", ""]
-    lines += [f"- {r}" for r in res["reasons"]]
+    lines = [f"# Rig {res.rig}: measured records", "", f"**Verdict: {res.verdict}**", ""]
+    lines += [f"- {r}" for r in res.reasons]
     lines += ["", "Fits are NRMSE fit % (MATLAB `compare`); the gap is predicted by the prediction-error replay "
               "in closed loop with a controller identified from the record (a linear map from the gap, the "
               "reference, the current and its own past to the actuator signal, fitted on the other half of the "
@@ -2199,8 +2208,8 @@ def _markdown(res: dict, plots: list[Path]) -> str:
               "model's error: docs/diagnosis.md, 'A controller nobody states'), and driven by the measured "
               "actuator signal alone; skill = 1 − ‖error of the model‖/‖error of 'stays put'‖ (> 0: the model "
               "beats the naive predictor).", ""]
-    comp = res.get("comparison", {})
-    if any("black_box" in v for c in comp.values() for v in c.values() if isinstance(v, dict)):
+    comp = res.comparison
+    if comp is not None and any(c.horizons for c in comp.roles):    # each horizon's row has the black box's figures
         lines += ["## The model against the black-box baseline", "",
                   "Median skill against 'stays put' (worst in brackets) of the gap predicted ahead: the model (the "
                   "physics with its effects and its disturbance model) in closed loop with the identified controller "
@@ -2211,25 +2220,25 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                   "> 0 beats 'stays put'.", "",
                   *comparison_table(comp)]
         lines.append("")
-    cal = res.get("calibration")
+    cal = res.calibration
     if cal:
         units = {n: u for n, (_, _, _, u) in param_table().items()}
         lines += ["## Calibration", "", "| parameter | unit | rig file | calibrated |", "|---|---|---|---|"]
-        lines += [f"| {n} | {units.get(n, '')} | {cal['rig_values'][n]:.6g} | {cal['values'][n]:.6g} |"
-                  for n in cal["names"]]
-        nz = cal.get("noise", {})
+        lines += [f"| {n} | {units.get(n, '')} | {cal.rig_values[n]:.6g} | {cal.values[n]:.6g} |"
+                  for n in cal.names]
+        nz = cal.noise
         if nz:
             lines += ["", "The filter's disturbance model, calibrated with the plant: random force on the ball "
                       f"{nz['q_force'] * 1e3:.3g} mN RMS with a {nz['f_force']:.3g} Hz corner, sensor noise "
                       f"{nz['r_sensor']:.3g} MU RMS, current noise {nz['r_current'] * 1e3:.3g} mA RMS."]
-        lines += ["", f"Cost {cal['cost_before']:.4g} → {cal['cost_after']:.4g} in {cal['evaluations']} evaluations "
-                  f"(prediction errors {', '.join(f'{h * 1e3:g}' for h in cal.get('horizons_s', []))} ms ahead)."]
-        coil = res.get("coil_calibration")
+        lines += ["", f"Cost {cal.cost_before:.4g} → {cal.cost_after:.4g} in {cal.evaluations} evaluations "
+                  f"(prediction errors {', '.join(f'{h * 1e3:g}' for h in cal.horizons_s)} ms ahead)."]
+        coil = res.coil_calibration
         if coil:
             lines += ["", "The coil was calibrated first, on the current computed from the actuator signal alone: "
-                      + ", ".join(f"`{n}` = {v:.5g} {units.get(n, '')}" for n, v in coil["values"].items()) + "."]
-        rows = [(s["label"], s.get("own_coil")) for e in res["records"] for s in e["segments"]]
-        rows += [(v["label"], v.get("own_coil")) for v in res["validation"]]
+                      + ", ".join(f"`{n}` = {v:.5g} {units.get(n, '')}" for n, v in coil.values.items()) + "."]
+        rows = [(s.label, s.own_coil) for e in res.records for s in e.segments]
+        rows += [(v.label, v.own_coil) for v in res.validation]
         rows = [(lb, c) for lb, c in rows if c]
         if rows:
             names = list(rows[0][1])
@@ -2238,46 +2247,46 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                       "| segment | " + " | ".join(f"{n} [{units.get(n, '')}]" for n in names) + " |",
                       "|---|" + "---|" * len(names)]
             lines += [f"| {lb} | " + " | ".join(f"{c[n]:.5g}" for n in names) + " |" for lb, c in rows]
-        if res.get("spread"):
+        if res.spread:
             lines += ["", "Each record calibrated on its own (the spread between records):", "",
                       "| parameter | min | max | spread (max − min)/mean |", "|---|---|---|---|"]
             lines += [f"| {n} | {s['min']:.6g} | {s['max']:.6g} | "
                       + (f"{s['relative']:.3g} {units.get(n, '')} (max − min) |" if n in ("u_0", "kappa_R")
-                         else f"{100 * s['relative']:.1f} % |") for n, s in res["spread"].items()]
+                         else f"{100 * s['relative']:.1f} % |") for n, s in res.spread.items()]
         lines.append("")
-    ef = res.get("effects")
+    ef = res.effects
     if ef:
         lines += ["## Effects of the catalogue on the calibrated model", "",
-                  f"Each fitted on the even {ef['block_s']:g} s blocks, judged on the odd ones: the change of the "
-                  f"prediction cost of the gap 20 and 50 ms ahead and of the current 20 ms ahead (negative is better; at most −{100 * ef['min_gain']:.0f} % to be selected).",
+                  f"Each fitted on the even {ef.block_s:g} s blocks, judged on the odd ones: the change of the "
+                  f"prediction cost of the gap 20 and 50 ms ahead and of the current 20 ms ahead (negative is better; at most −{100 * ef.min_gain:.0f} % to be selected).",
                   "", "| round | effect | acts on | parameter | fitted value | held-out cost change: gap / current |",
                   "|---|---|---|---|---|---|"]
-        lines += [f"| {c['round']} | {c['effect']} | {c['location']} | {c['parameter']} | "
+        lines += [f"| {c.round} | {c.effect} | {c.location} | {c.parameter} | "
                   + (f"off (no start lowered the fit blocks' cost by {100 * REFINE_MIN_GAIN:g} %) | - / - |"
-                     if "screened" in c else
-                     f"{_values(c)} | " + " / ".join(f"{-100 * c['held_out_gains'][k]:+.1f} %" if k in c["held_out_gains"]
+                     if c.screened is not None else
+                     f"{_values(c)} | " + " / ".join(f"{-100 * c.held_out_gains[k]:+.1f} %" if k in c.held_out_gains
                                                      else "-" for k in ("y", "i")) + " |")
-                  for c in ef["candidates"]]
-        lines += ["", f"Selected: {', '.join(ef['selected']) or 'none'}.", ""]
+                  for c in ef.candidates]
+        lines += ["", f"Selected: {', '.join(ef.selected) or 'none'}.", ""]
         # what the rig was not offered, and why (its drive and force law, or the real-rig search's own
         # exclusions), and what the calibration fitted instead
-        missing = {n: why for n, why in (ef.get("offered") or {}).items() if why is not None}
+        missing = {n: why for n, why in ef.offered.items() if why is not None}
         if missing:
             lines += ["Not offered on this rig: " + "; ".join(f"{n} ({why})" for n, why in missing.items()) + ".", ""]
-        if ef.get("skipped"):
-            lines += [f"Not tried, the calibration fits their parameters: {', '.join(ef['skipped'])}.", ""]
-    co = res.get("correction")
+        if ef.skipped:
+            lines += [f"Not tried, the calibration fits their parameters: {', '.join(ef.skipped)}.", ""]
+    co = res.correction
     if co:
-        s = co["summary"]
+        s = co.summary
         lines += ["## The located correction at the mechanics", "",
-                  f"A force on the ball that is a function of the gap and the velocity ({co['basis']['n_x']} Legendre "
+                  f"A force on the ball that is a function of the gap and the velocity ({co.basis['n_x']} Legendre "
                   "terms in the gap, each times a static, a viscous (∝ v) and a friction (tanh(v/v_c)) part), in the "
                   "filter's model and its predictions; fitted by the prediction cost of the gap 20 and 50 ms ahead on "
-                  f"the even {EFFECT_BLOCK_S:g} s blocks, judged on the odd ones (ridge weight {co['ridge']:g}, chosen "
-                  f"there). Held-out cost change {-100 * co['held_out_gain']:+.1f} % (at most "
-                  f"−{100 * co['min_gain']:.0f} % to be used): {'used' if co['selected'] else 'not used'}.", "",
+                  f"the even {EFFECT_BLOCK_S:g} s blocks, judged on the odd ones (ridge weight {co.ridge:g}, chosen "
+                  f"there). Held-out cost change {-100 * co.held_out_gain:+.1f} % (at most "
+                  f"−{100 * co.min_gain:.0f} % to be used): {'used' if co.selected else 'not used'}.", "",
                   "| velocity shape fitted alone | held-out cost change |", "|---|---|"]
-        lines += [f"| {k} | {-100 * v:+.1f} % |" for k, v in co["held_out_gain_by_shape"].items()]
+        lines += [f"| {k} | {-100 * v:+.1f} % |" for k, v in co.held_out_gain_by_shape.items()]
         lines += ["", f"Averaged over the records' gaps (positive: opposing the motion): static {s['static_pct_weight']:+.2f} ± "
                   f"{s['static_sigma_pct_weight']:.2f} % of the weight, viscous {s['viscous_N_s_per_m']:+.3g} ± "
                   f"{s['viscous_sigma']:.2g} N·s/m, friction {1e3 * s['friction_N']:+.3g} ± {1e3 * s['friction_sigma']:.2g} mN "
@@ -2287,41 +2296,41 @@ def _markdown(res: dict, plots: list[Path]) -> str:
                   "friction. " + s.get("answer", ""), ""]
     for title, key in (("Before calibration (the rig file's values)", "before"), ("After calibration", "after")):
         lines += [f"## {title}", "", head]
-        lines += [_row(s["label"], s[key]) for e in res["records"] for s in e["segments"]]
+        lines += [_row(s.label, getattr(s, key)) for e in res.records for s in e.segments]
         lines.append("")
-    if res["validation"]:
+    if res.validation:
         lines += ["## Validation on records not used for calibration", "", head]
-        lines += [_row(v["label"], v["after"]) for v in res["validation"]]
+        lines += [_row(v.label, v.after) for v in res.validation]
         lines.append("")
-    fr = [s["frequency_response"] for e in res["records"] for s in e["segments"] if s.get("frequency_response")]
+    fr = [s.frequency_response for e in res.records for s in e.segments if s.frequency_response]
     if fr:
         lines += ["## Current to gap: measured against the model (1–20 Hz)", "",
                   "| segment | mean coherence | gain measured/model | phase difference [deg] |", "|---|---|---|---|"]
-        lines += [f"| {s['label']} | {s['frequency_response']['mean_coherence']:.2f} | "
-                  f"{s['frequency_response']['gain_ratio_measured_over_model']:.2f} | "
-                  f"{s['frequency_response']['phase_difference_deg']:+.0f} |"
-                  for e in res["records"] for s in e["segments"] if s.get("frequency_response")]
+        lines += [f"| {s.label} | {s.frequency_response['mean_coherence']:.2f} | "
+                  f"{s.frequency_response['gain_ratio_measured_over_model']:.2f} | "
+                  f"{s.frequency_response['phase_difference_deg']:+.0f} |"
+                  for e in res.records for s in e.segments if s.frequency_response]
         lines.append("")
-    fbs = [(e["label"], e["force_balance"]) for e in res["records"] if e.get("force_balance")]
+    fbs = [(e.label, e.force_balance) for e in res.records if e.force_balance]
     if fbs:
         lines += ["## Force balance: the share of the weight the force law carries at the measured gap and current",
                   "", "| record | 10 % | median | 90 % | levitating samples |", "|---|---|---|---|---|"]
-        lines += [f"| {lab} | {100 * f['p10']:.0f} % | {100 * f['median']:.0f} % | {100 * f['p90']:.0f} % | "
-                  f"{f['samples']} |" for lab, f in fbs]
+        lines += [f"| {lab} | {100 * f.p10:.0f} % | {100 * f.median:.0f} % | {100 * f.p90:.0f} % | "
+                  f"{f.samples} |" for lab, f in fbs]
         lines.append("")
-    if res.get("controller"):
-        c = res["controller"]
+    if res.controller:
+        c = res.controller
         lines += [f"## The declared controller: {c['name']} ({c['type']})", "",
                   "Replayed alone on each record's measured signals, against the recorded actuator signal "
                   "(and loop by loop, when the record holds the current reference); then in closed loop with "
                   "the calibrated model, 20 ms ahead from every sample.", "",
                   "| record | actuator fit % | per loop | closed loop 20 ms: gap fit % / actuator fit % |",
                   "|---|---|---|---|"]
-        for e in res["records"]:
-            cc = e.get("controller_check", {})
-            loops = "; ".join(f"{k}: {v['fit']:.1f} %" for k, v in cc.get("loops", {}).items()) or "-"
-            cl = ", ".join(f"{x['gap_fit']:.1f} / {x['actuator_fit']:.1f}" for x in e.get("closed_loop", [])) or "-"
-            lines.append(f"| {e['label']} | {cc.get('actuator_fit', float('nan')):.1f} | {loops} | {cl} |")
+        for e in res.records:
+            cc = e.controller_check
+            loops = "; ".join(f"{k}: {v['fit']:.1f} %" for k, v in (cc.loops if cc else {}).items()) or "-"
+            cl = ", ".join(f"{x.gap_fit:.1f} / {x.actuator_fit:.1f}" for x in e.closed_loop or []) or "-"
+            lines.append(f"| {e.label} | {cc.actuator_fit if cc else float('nan'):.1f} | {loops} | {cl} |")
         lines.append("")
     lines += [f"![{p.stem}]({p.name})" for p in plots]
     return "\n".join(lines) + "\n"
@@ -2364,7 +2373,7 @@ def _load_matplotlib() -> None:
 
 
 def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, noise: dict[str, float] | None = None,
-           black_box: dict | None = None, figs: Sequence[dict] = ()) -> list[Path]:
+           black_box: dict | None = None, figs: Sequence[RigFigures] = ()) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -2405,11 +2414,11 @@ def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, nois
     fig.savefig(p, dpi=110)
     plt.close(fig)
     written.append(p)
-    drifts = [(f["label"], f["drift"]) for f in figs if f.get("drift", {}).get("t_s")]
+    drifts = [(f.label, f.drift) for f in figs if f.drift is not None and f.drift.t_s]
     if drifts:
         fig, a = plt.subplots(figsize=(9, 4.5))
         for j, (label, d) in enumerate(drifts):
-            tt, m, s2 = (np.asarray(d[k]) for k in ("t_s", "force_pct_weight", "two_sigma_pct_weight"))
+            tt, m, s2 = (np.asarray(v) for v in (d.t_s, d.force_pct_weight, d.two_sigma_pct_weight))
             a.plot(tt, m, color=f"C{j % 10}", lw=1.2, label=label)
             a.fill_between(tt, m - s2, m + s2, color=f"C{j % 10}", alpha=0.15)
         a.axhline(0, color="0.5", lw=0.8)

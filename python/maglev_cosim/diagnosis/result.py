@@ -242,7 +242,8 @@ class DiagnosisResult:
     checks: list[RecordCheck] = field(default_factory=list)
     reasons: list[str] = field(default_factory=list)
     written: list[Path] = field(default_factory=list)
-    #: The path's own keys of ``diagnosis.json`` (docs/diagnosis-json.md, "besides"), as its stages found them.
+    #: The path's own keys of ``diagnosis.json`` (docs/diagnosis-json.md, "besides"), as its stages found them
+    #: (a real rig's stage results typed, :mod:`.rig_result`: :func:`finite` writes their ``to_json``).
     extra: dict = field(default_factory=dict)
     #: The path's stage result (:class:`~.pipeline.Diagnosis` of a CE152 record), for its figures; not in the JSON.
     detail: Any = None
@@ -276,7 +277,10 @@ class DiagnosisResult:
 
 def finite(v):
     """JSON-safe: non-finite numbers become null (strict JSON has no NaN or Infinity); numpy
-    scalars and arrays become Python numbers and lists."""
+    scalars and arrays become Python numbers and lists; a typed result (a stage's dataclass with
+    ``to_json``, :mod:`.rig_result`) becomes its JSON."""
+    if hasattr(v, "to_json"):
+        return finite(v.to_json())
     if isinstance(v, dict):
         return {k: finite(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
@@ -326,49 +330,40 @@ def from_ce152(d, calibrated_fmu: CalibratedFmu | None, written: list[Path], com
         extra={k: x for k, x in data.items() if k not in _CE152_TYPED}, detail=d)
 
 
-#: Keys of a real rig's result dict that the typed fields hold.
-_RIG_TYPED = (*_CE152_TYPED, "calibrated_fmu", "written", "comparison", "reasons")
+def _skill(f) -> dict[str, float | None]:
+    return {h: _num(p.skill_vs_stays_put) for h, p in f.position.items()}
 
 
-def _skill(f: dict) -> dict[str, float | None]:
-    return {h: _num(p.get("skill_vs_stays_put")) for h, p in f["position"].items()}
+def _current(f) -> float | None:
+    return _num((f.current or {}).get("from_actuator"))
 
 
-def _current(f: dict) -> float | None:
-    return _num((f.get("current") or {}).get("from_actuator"))
-
-
-def from_rig(res: dict, sigma: dict[str, float] | None = None) -> DiagnosisResult:
-    """The result of the real-rig path (:func:`~.real_rig.run`: prediction driven by the measured
-    actuator signal, calibration over several records, the black-box comparison)."""
-    segments = [SegmentFigures(s["label"], "calibration", _current(s["after"]), _skill(s["after"]))
-                for e in res["records"] for s in e["segments"]]
-    segments += [SegmentFigures(v["label"], "validation", _current(v["after"]), _skill(v["after"]))
-                 for v in res["validation"]]
+def from_rig(res, sigma: dict[str, float] | None = None) -> DiagnosisResult:
+    """The result of the real-rig path (:func:`~.real_rig.run`, a :class:`~.rig_result.RigRun`: prediction
+    driven by the measured actuator signal, calibration over several records, the black-box comparison).
+    Its stages' typed results (:mod:`.rig_result`) are kept as they are in :attr:`DiagnosisResult.extra`
+    (:meth:`~.rig_result.RigRun.own_keys`); ``sigma``: the parameters' ±1σ instead of the run's."""
+    segments = [SegmentFigures(s.label, "calibration", _current(s.after), _skill(s.after))
+                for e in res.records for s in e.segments]
+    segments += [SegmentFigures(v.label, "validation", _current(v.after), _skill(v.after)) for v in res.validation]
     checks = []
-    for e in res["records"]:
-        fb, cc = e.get("force_balance"), e.get("controller_check")
-        check = RecordCheck(e["label"], (fb["median"], fb["p10"], fb["p90"]) if fb else None)
+    for e in res.records:
+        fb, cc = e.force_balance, e.controller_check
+        check = RecordCheck(e.label, (fb.median, fb.p10, fb.p90) if fb else None)
         if cc:
-            check.controller = res["controller"]["name"]
-            check.actuator_fit = cc["actuator_fit"]
-            check.loop_fits = {k: x["fit"] for k, x in cc["loops"].items()}
-            check.closed_loop = [(x["gap_fit"], x["actuator_fit"]) for x in e["closed_loop"]]
+            check.controller = res.controller["name"]
+            check.actuator_fit = cc.actuator_fit
+            check.loop_fits = {k: x["fit"] for k, x in cc.loops.items()}
+            check.closed_loop = [(x.gap_fit, x.actuator_fit) for x in e.closed_loop]
         checks.append(check)
-    comparison = [Comparison(role, c["segments"],
-                             {h: HorizonSkill(*(_num(x[k]) for w in HorizonSkill.WHO for k in (w, f"{w}_worst")))
-                              for h, x in c.items() if h != "segments"})
-                  for role, c in (res.get("comparison") or {}).items()]
-    fmu = res.get("calibrated_fmu")
+    comparison = [Comparison(c.role, c.segments,
+                             {h: HorizonSkill(*(_num(getattr(x, k)) for w in HorizonSkill.WHO for k in (w, f"{w}_worst")))
+                              for h, x in c.horizons.items()})
+                  for c in (res.comparison.roles if res.comparison is not None else [])]
     return DiagnosisResult(
-        kind="rig", verdict=res["verdict"], fit=Fit.from_json(res.get("fit")),
-        fit_before=Fit.from_json(res.get("fit_before")), warnings=list(res.get("warnings", [])),
-        selected=list(res.get("selected", [])),
-        parameters=_parameters(res.get("parameters", {}), res.get("uncertainties", {}) if sigma is None else sigma),
-        before=Residual.from_json(res.get("before")), after=Residual.from_json(res.get("after")),
-        location_evidence=[LocationEvidence.from_json(k, e) for k, e in res.get("location_evidence", {}).items()],
-        calibrated_fmu=CalibratedFmu(fmu["file"], [RecordRef(r["file"], r.get("sha256")) for r in fmu["records"]])
-        if fmu else None,
-        comparison=comparison, segments=segments, checks=checks, reasons=list(res.get("reasons", [])),
-        written=[Path(p) for p in res.get("written", [])],
-        extra={k: x for k, x in res.items() if k not in _RIG_TYPED})
+        kind="rig", verdict=res.verdict, fit=res.fit, fit_before=res.fit_before, warnings=list(res.warnings),
+        selected=list(res.selected),
+        parameters=_parameters(res.parameters, res.uncertainties if sigma is None else sigma),
+        before=res.before, after=res.after, location_evidence=list(res.location_evidence),
+        calibrated_fmu=res.calibrated_fmu, comparison=comparison, segments=segments, checks=checks,
+        reasons=list(res.reasons), written=[Path(p) for p in res.written], extra=res.own_keys())
