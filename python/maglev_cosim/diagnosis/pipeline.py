@@ -32,7 +32,7 @@ from .acceptance import ALPHA, CRITERION, MIN_GAIN, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .metrics import nrmse_fit
-from .problem import Fit, Parameterization, Problem, cost_on, fit, residuals, stacked, thread_map
+from .problem import Fit, Parameterization, Problem, cost_on, fit, one_thread, residuals, stacked, thread_map
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
 from .result import Json
@@ -606,7 +606,7 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
     cpu: dict[str, float] = {}       # each candidate's CPU time in the last round
     last_fits: dict[str, tuple[dict, dict]] = {}   # each candidate's latest fit to convergence (entry, values)
     ctx = get_context("fork") if sys.platform.startswith("linux") else get_context()
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx) if workers > 1 else None
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=one_thread) if workers > 1 else None
 
     def run(fn, args) -> Future:
         """``fn(args)`` on the pool, or at once here (one worker)."""

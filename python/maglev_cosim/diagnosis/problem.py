@@ -49,9 +49,16 @@ def on_fit_steps(values: Mapping[str, float]) -> dict[str, float]:
 #: Threads that evaluate independent replays side by side: a fit's finite-difference Jacobian
 #: columns and a batch of an effect's starts (:func:`thread_map`). The replays run in C with the GIL
 #: released (cffi), so two threads use two cores; the numbers are those of one thread, evaluation by
-#: evaluation. Inside the search's worker processes they keep a core busy that would idle while the
-#: other worker has no job left (the round's last, longest fit).
+#: evaluation. The search's worker processes, which keep the cores busy themselves, take one each
+#: (:func:`one_thread`): with two there, four threads shared two cores, and the bench's 12 s record
+#: took 3.7-3.9 s with one effect and 4.6-4.8 s with two, against 3.55-3.64 s and 4.43-4.57 s.
 THREADS = min(2, os.cpu_count() or 1)
+
+
+def one_thread() -> None:
+    """Replays one at a time in this process (a worker process of the search)."""
+    global THREADS
+    THREADS = 1
 
 #: Whether scipy's least squares takes ``workers`` (SciPy 1.16 on); older ones take the columns one by one.
 _LSQ_WORKERS = "workers" in inspect.signature(least_squares).parameters
