@@ -1,0 +1,104 @@
+"""Benchmark: how long the real-rig commands take (issue 21, item 4), as a user runs them.
+
+Times, through the command line (``maglev-cosim``, a fresh process each: imports included):
+
+1. ``diagnose`` of each shared Inteco MLS2EM record alone (15 s records; target: at most 15 s
+   each), and of the levitador session (``--controller levitador-cascade``);
+2. ``calibrate`` on the README's three calibration records with 15 validation records (target:
+   at most 90 s). The shared folder holds six validation records: the fifteen are those six, then
+   the six again, then the first three, each copied under its own name (the same cost per record
+   as fifteen different ones of the same length).
+
+Writes the section "Real rig: speed (issue 21, item 4)" of docs/benchmarks.md; figures in the doc
+are written only by this script.
+
+    .venv/bin/python scripts/bench_rig_speed.py [--data ../shared/data/real] [--no-write]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import benchdoc
+from bench_rig import CALIBRATION, VALIDATION, _data_dir
+
+ROOT = benchdoc.ROOT
+CLI = ROOT / ".venv" / "bin" / "maglev-cosim"
+SECTION = "## Real rig: speed (issue 21, item 4)"
+#: Targets [s]: one 15 s record diagnosed, and 3 + 15 records calibrated and validated.
+TARGETS_S = (15.0, 90.0)
+N_VALIDATION = 15
+
+
+def _timed(args: list[str]) -> tuple[float, str]:
+    """Wall time [s] of one ``maglev-cosim`` run, and its verdict line (the run must succeed)."""
+    t0 = time.perf_counter()
+    r = subprocess.run([str(CLI), *args], capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if r.returncode != 0:
+        raise SystemExit(f"bench_rig_speed: maglev-cosim {' '.join(args)} failed ({r.returncode}):\n{r.stderr[-2000:]}")
+    verdict = next((ln.split(":", 1)[1].strip() for ln in r.stdout.splitlines() if ln.startswith("verdict:")), "?")
+    return wall, verdict
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", help="the shared real records (default: $MAGLEV_REAL_DATA or ../shared/data/real)")
+    ap.add_argument("--no-write", action="store_true", help="print the section, leave docs/benchmarks.md alone")
+    a = ap.parse_args(argv)
+    data = _data_dir(a.data)
+    res_dir = data / "inteco-mls2em" / "results"
+    t_start = time.perf_counter()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        for name in (*CALIBRATION, *VALIDATION):
+            wall, verdict = _timed(["diagnose", str(res_dir / f"{name} - KF.mat"), "--rig", "inteco-mls2em",
+                                    "--out", str(tmp / "one")])
+            rows.append([f"`{name} - KF.mat`", "inteco-mls2em", f"{wall:.1f}", verdict])
+            print(rows[-1], flush=True)
+        lev = data / "levitador-benchmark" / "data" / "sesiones_kan_pinn" / "dataset_escalon_20251217_205858.txt"
+        if lev.is_file():
+            wall, verdict = _timed(["diagnose", str(lev), "--rig", "levitador", "--controller", "levitador-cascade",
+                                    "--out", str(tmp / "lev")])
+            rows.append([f"`{lev.name}`", "levitador", f"{wall:.1f}", verdict])
+            print(rows[-1], flush=True)
+        copies = tmp / "validation"
+        copies.mkdir()
+        val = []
+        for k in range(N_VALIDATION):
+            src = res_dir / f"{VALIDATION[k % len(VALIDATION)]} - KF.mat"
+            dst = copies / f"{VALIDATION[k % len(VALIDATION)].replace('/', '_')} copy {k // len(VALIDATION) + 1}.mat"
+            shutil.copyfile(src, dst)
+            val.append(dst)
+        args = ["calibrate", *(str(res_dir / f"{n} - KF.mat") for n in CALIBRATION)]
+        for v in val:
+            args += ["--validate", str(v)]
+        wall_cal, verdict_cal = _timed([*args, "--rig", "inteco-mls2em", "--out", str(tmp / "cal")])
+        print("calibrate 3 +", N_VALIDATION, wall_cal, verdict_cal, flush=True)
+    inteco = [float(r[2]) for r in rows if r[1] == "inteco-mls2em"]
+    body = (f"Each run is a fresh `maglev-cosim` process (imports included), one after the other. Targets: "
+            f"`diagnose` of one 15 s record at most {TARGETS_S[0]:g} s; `calibrate` on 3 records with "
+            f"{N_VALIDATION} validation records at most {TARGETS_S[1]:g} s.\n\n"
+            + benchdoc.table(["record", "rig", "diagnose wall [s]", "verdict"], rows)
+            + f"\n\nThe Inteco records alone: median {sorted(inteco)[len(inteco) // 2]:.1f} s, longest "
+              f"{max(inteco):.1f} s (target {TARGETS_S[0]:g} s).\n\n"
+            + f"`calibrate` on the README's three calibration records ({', '.join(CALIBRATION)}) with "
+              f"{N_VALIDATION} validation records (the six shared ones, then the six again, then the first "
+              f"three, each copied under its own name): **{wall_cal:.1f} s** wall (target {TARGETS_S[1]:g} s); "
+              f"verdict {verdict_cal}.")
+    text = f"{SECTION}\n\n{benchdoc.stamp(time.perf_counter() - t_start)}\n\n{body}\n"
+    print(text)
+    if not a.no_write:
+        benchdoc.replace_section(text)
+        print(f"wrote the section of {benchdoc.DOC}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
