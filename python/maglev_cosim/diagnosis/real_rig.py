@@ -147,12 +147,14 @@ def check_units(rig: Rig, m: Measured) -> None:
 
 #: The longest RK4 substep [s] of the replays (the plant's ``solver_step`` where it is longer; the
 #: plant shortens it further where a force lag, a friction or the coil's time constant needs it). The
-#: FMU's default of 0.1 ms is set for the CE152's fast dynamics; on the 1 kHz Inteco records 0.5 ms
-#: moves the gap predicted 5 to 50 ms ahead by under 5e-8 MU and the current by under 3e-7 A (the MPC
-#: step and the LQI stairs records, the benchmark's calibrated model: against a 50 ms prediction error
-#: of 0.006 to 0.011 MU RMS, a position step of 3.7e-4 MU and 10 mA of current noise) and takes a third
-#: of the time. The calibrated parameters and the calibrated FMU keep the plant's own step.
-REPLAY_SOLVER_STEP = 5e-4
+#: FMU's default of 0.1 ms is set for the CE152's fast dynamics. On the 1 kHz Inteco records, with the
+#: rig file's values, 1 ms moves the gap predicted 5, 20 and 50 ms ahead by at most 1.4e-5 MU and the
+#: current by at most 6.7e-5 A against 0.1 ms (step/MPC; multisteps_stairs/LQI: 2.4e-6 MU, 1.1e-6 A),
+#: against a position step of 3.7e-4 MU, a 50 ms prediction error of 0.006 to 0.011 MU RMS and 10 mA
+#: of current noise; 0.5 ms moved them by 5.1e-7 MU and 2.8e-6 A. A record's three predictions take
+#: 0.33 s at 1 ms, 0.51 s at 0.5 ms and 1.9 s at 0.1 ms. The calibrated parameters and the calibrated
+#: FMU keep the plant's own step.
+REPLAY_SOLVER_STEP = 1e-3
 
 
 def _start(rig: Rig, r: RigRecord, params: PlantParams) -> PlantParams:
