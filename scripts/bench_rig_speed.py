@@ -29,7 +29,7 @@ from bench_rig import CALIBRATION, VALIDATION, _data_dir
 
 ROOT = benchdoc.ROOT
 CLI = ROOT / ".venv" / "bin" / "maglev-cosim"
-SECTION = "## Real rig: speed (issue 21, item 4)"
+TITLE = "Real rig: speed (issue 21, item 4)"
 #: Targets [s]: one 15 s record diagnosed, and 3 + 15 records calibrated and validated.
 TARGETS_S = (15.0, 90.0)
 N_VALIDATION = 15
@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{N_VALIDATION} validation records (the six shared ones, then the six again, then the first "
               f"three, each copied under its own name): **{wall_cal:.1f} s** wall (target {TARGETS_S[1]:g} s); "
               f"verdict {verdict_cal}.")
-    text = f"{SECTION}\n\n{benchdoc.stamp(time.perf_counter() - t_start)}\n\n{body}\n"
+    text = benchdoc.section(TITLE, body, time.perf_counter() - t_start)
     print(text)
     if not a.no_write:
         benchdoc.replace_section(text)
