@@ -1156,6 +1156,32 @@ int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator 
     return 0;
 }
 
+int maglev_copy_into(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a) {
+    MaglevHistory own = dst->hist;
+    if (src->hist.len > own.cap) { /* grown with room to spare: the copy's next input needs no new buffer */
+        size_t cap = 2 * src->hist.len + 8;
+        double *nt = a->alloc(cap, sizeof(double), a->env), *nu = a->alloc(cap, sizeof(double), a->env);
+        if (!nt || !nu) {
+            if (nt) a->release(nt, a->env);
+            if (nu) a->release(nu, a->env);
+            return -1;
+        }
+        if (own.t) a->release(own.t, a->env);
+        if (own.u) a->release(own.u, a->env);
+        own.t = nt;
+        own.u = nu;
+        own.cap = cap;
+    }
+    *dst = *src;
+    dst->hist = own;
+    dst->hist.len = src->hist.len;
+    if (src->hist.len) {
+        memcpy(dst->hist.t, src->hist.t, src->hist.len * sizeof(double));
+        memcpy(dst->hist.u, src->hist.u, src->hist.len * sizeof(double));
+    }
+    return 0;
+}
+
 /* Layout: magic "MGLV", u32 version, u32 nparams, u64 hist len, u32 tag code, i32 initialized, doubles
  * (params, time, u, x, v, i, F, xs, F2, the tag's values), i32 contact, u32 tag flags, hist pairs, u64 FNV-1a
  * of all before. Version 4 added the tag's values and flags (the FMU's experiment): an image of version 3

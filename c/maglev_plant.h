@@ -164,6 +164,9 @@ double maglev_input_for_current(const MaglevPlant *m, double i);
 
 /* Deep copy (history included); dst must be released or zeroed beforehand. */
 int maglev_copy(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a);
+/* maglev_copy into dst, a plant whose history buffers (none: zeroed) it keeps and grows only when too
+ * small; on failure (-1, out of memory) dst is left as it was. */
+int maglev_copy_into(MaglevPlant *dst, const MaglevPlant *src, const MaglevAllocator *a);
 void maglev_release(MaglevPlant *m, const MaglevAllocator *a);
 
 /* What a caller keeps in a plant's byte image, under the image's version and checksum, uninterpreted by

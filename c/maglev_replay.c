@@ -307,27 +307,26 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
  * of all NS states, the filter took 5.6 ms on a 12 s record, against 5.3 ms (the innovations, the
  * 20 ms predictions and u's, the same to the bit on three models with lags and coloured noise). */
 static void sandwich(double M[NS][NS], double P[NS][NS], const int *idx, int na) { /* M is only read */
-    double MP[NS][NS];
-    for (int a = 0; a < na; a++) {
-        const int i = idx[a];
+    /* the active blocks of M and P gathered into dense arrays first: the products then read
+     * contiguous rows (a third of the filter's time went to the scattered reads) */
+    double Mc[NS][NS], Pc[NS][NS], MP[NS][NS];
+    for (int a = 0; a < na; a++)
         for (int c = 0; c < na; c++) {
-            const int j = idx[c];
-            double sum = 0.0;
-            for (int b = 0; b < na; b++) sum += M[i][idx[b]] * P[idx[b]][j];
-            MP[i][j] = sum;
+            Mc[a][c] = M[idx[a]][idx[c]];
+            Pc[a][c] = P[idx[a]][idx[c]];
         }
-    }
-    for (int a = 0; a < na; a++) {
-        const int i = idx[a];
-        double row[NS];
+    for (int a = 0; a < na; a++)
         for (int c = 0; c < na; c++) {
-            const int j = idx[c];
             double sum = 0.0;
-            for (int b = 0; b < na; b++) sum += MP[i][idx[b]] * M[j][idx[b]];
-            row[c] = sum;
+            for (int b = 0; b < na; b++) sum += Mc[a][b] * Pc[b][c];
+            MP[a][c] = sum;
         }
-        for (int c = 0; c < na; c++) P[i][idx[c]] = row[c];
-    }
+    for (int a = 0; a < na; a++)
+        for (int c = 0; c < na; c++) {
+            double sum = 0.0;
+            for (int b = 0; b < na; b++) sum += MP[a][b] * Mc[c][b];
+            P[idx[a]][idx[c]] = sum;
+        }
 }
 
 static void get_state(const MaglevPlant *m, double d, double c, double s[NS]) {
@@ -357,8 +356,10 @@ static void put_state(MaglevPlant *m, const double s[NS]) {
     m->contact = CONTACT_NONE;
 }
 
-static int copy_plant(MaglevPlant *dst, const MaglevPlant *src, char *msg, size_t len) {
-    if (maglev_copy(dst, src, &maglev_std_allocator) == 0) return 0;
+/* A copy of the plant into a scratch plant that keeps its history buffers (maglev_copy_into): the
+ * filter copies the plant several times a sample, and allocating each copy's history was a tenth of it */
+static int reuse_plant(MaglevPlant *dst, const MaglevPlant *src, char *msg, size_t len) {
+    if (maglev_copy_into(dst, src, &maglev_std_allocator) == 0) return 0;
     snprintf(msg, len, "out of memory in the prediction-error replay");
     return -1;
 }
@@ -523,7 +524,10 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                    double u_hold, int n_h, const int *horizons, const unsigned char *starts, double *y_pred,
                    double *u_pred, double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
                    char *msg, size_t len) {
-    MaglevPlant m;
+    MaglevPlant m, nom, pert, cur; /* the plant, and scratch copies: the step, its Jacobian's, a prediction's */
+    memset(&nom.hist, 0, sizeof nom.hist);
+    memset(&pert.hist, 0, sizeof pert.hist);
+    memset(&cur.hist, 0, sizeof cur.hist);
     if ((ctl && ctl_check(ctl, u_hold, msg, len)) || filter_check(f, msg, len) || correction_check(corr, msg, len))
         return -1;
     /* the horizons: one trajectory from each stride-th sample to the longest, read at each */
@@ -633,10 +637,9 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
         if (n_h > 1 && k + (size_t)h_run >= n) h_run = (int)(n - 1 - k);
         if (h_run > 0 && k % (size_t)f->stride == (size_t)f->offset && (!starts || starts[k]) &&
             k + (size_t)h_run < n) {
-            MaglevPlant cur;
             CtlState pp = cs;
             double dd = d, cc = c, uin = u[k], yj = 0.0;
-            if (copy_plant(&cur, &m, msg, len)) {
+            if (reuse_plant(&cur, &m, msg, len)) {
                 rc = -1;
                 break;
             }
@@ -665,21 +668,18 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                     if (i_pred) i_pred[at] = maglev_get(&cur, VR_i);
                 }
             }
-            maglev_release(&cur, &maglev_std_allocator);
             if (rc) break;
         }
         /* time update: the nominal step, and its Jacobian by finite differences; the Jacobian
          * changes slowly along a levitating record, so it is refreshed every JAC_EVERY samples
          * (and whenever the ball touches a stop), which makes the filter about three times cheaper */
-        MaglevPlant nom, pert;
         double s0[NS], s1[NS];
         get_state(&m, d, c, s0);
-        if (copy_plant(&nom, &m, msg, len)) {
+        if (reuse_plant(&nom, &m, msg, len)) {
             rc = -1;
             break;
         }
         if (advance(&nom, u[k], d + maglev_correction_force(corr, m.x, m.v), ts, msg, len)) {
-            maglev_release(&nom, &maglev_std_allocator);
             rc = -1;
             break;
         }
@@ -700,13 +700,12 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             double sp[NS];
             memcpy(sp, s0, sizeof sp);
             sp[j] += delta[j];
-            if (copy_plant(&pert, &m, msg, len)) {
+            if (reuse_plant(&pert, &m, msg, len)) {
                 rc = -1;
                 break;
             }
             put_state(&pert, sp);
             if (advance(&pert, u[k], d + maglev_correction_force(corr, pert.x, pert.v), ts, msg, len)) {
-                maglev_release(&pert, &maglev_std_allocator);
                 rc = -1;
                 break;
             }
@@ -714,10 +713,12 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             get_state(&pert, a * d, b * c, s2);
             for (int i = 0; i < NS; i++)
                 if (i != 4 && i != 6) A[i][j] = (s2[i] - s1[i]) / delta[j];
-            maglev_release(&pert, &maglev_std_allocator);
         }
-        maglev_release(&m, &maglev_std_allocator);
-        m = nom;
+        {   /* the step taken: nom is the plant now, and m's buffers its scratch for the next copy */
+            MaglevPlant was = m;
+            m = nom;
+            nom = was;
+        }
         d = a * d;
         c = b * c;
         if (rc) break;
@@ -738,6 +739,9 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             }
     }
     maglev_release(&m, &maglev_std_allocator);
+    maglev_release(&nom, &maglev_std_allocator);
+    maglev_release(&pert, &maglev_std_allocator);
+    maglev_release(&cur, &maglev_std_allocator);
     return rc;
 }
 

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import signal
-from scipy.optimize import least_squares, minimize, minimize_scalar
+from scipy.optimize import least_squares, minimize_scalar
 from threadpoolctl import threadpool_limits
 
 # Imported inside a function, on purpose: matplotlib (heavy, only the plots).
@@ -51,6 +51,7 @@ from . import blackbox as bb
 from . import reaction
 from .effects import CATALOGUE, force_law
 from .metrics import nrmse_fit
+from .neldermead import nelder_mead
 from .problem import Coord
 from .result import (CalibratedFmu, Comparison, Fit, HorizonSkill, LocationEvidence, PredictionFit, RecordRef, Residual,
                      finite)
@@ -1026,7 +1027,7 @@ def _fit_joint(rig: Rig, records: Sequence[RigRecord], params: PlantParams, cand
                start: Sequence[Sequence[float]], *, parity: int | None, noise: dict[str, float] | None,
                maxfev: int = JOINT_MAXFEV) -> tuple[list[tuple[float, ...]], float]:
     """The coordinates of one or several effects fitted together (Nelder-Mead on the prediction cost
-    of :func:`_fit_one`, in coordinates scaled by each catalogue range, from ``start``, one point per
+    of :func:`_fit_one`, scipy's path evaluated side by side: :func:`~.neldermead.nelder_mead`, in coordinates scaled by each catalogue range, from ``start``, one point per
     effect, at most ``maxfev`` evaluations): (coordinates per effect, cost)."""
     coords = [c for cand in cands for c in cand.coords]
     lo = np.array([c.lo for c in coords])
@@ -1049,8 +1050,8 @@ def _fit_joint(rig: Rig, records: Sequence[RigRecord], params: PlantParams, cand
 
     z0 = np.clip((np.concatenate([np.asarray(s, float) for s in start]) - lo) / span, 0.0, 1.0)
     simplex = [z0] + [z0 + 0.05 * np.eye(len(z0))[k] for k in range(len(z0))]
-    res = minimize(cost, z0, method="Nelder-Mead",
-                   options={"maxfev": maxfev, "xatol": 1e-3, "fatol": 1e-4, "initial_simplex": simplex})
+    # scipy's Nelder-Mead path, with the points a step may need replayed side by side on the cores
+    res = nelder_mead(cost, simplex, maxfev=maxfev, xatol=1e-3, fatol=1e-4, map_fn=_map)
     return split(res.x), float(res.fun)
 
 
