@@ -1407,17 +1407,12 @@ def correction_plot(rig: Rig, co: RigCorrection, params: PlantParams, path: Path
     gaps (the positions' 10th, 50th and 90th percentile of the basis span), and against the gap at
     three velocities, with the catalogue's damping beside it (the velocity force in all), in the
     record's convention (gap growing downward: a force opposing a downward motion is upward)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     b = co.basis
     corr = {**b, "coef": co.coef}
     w = params.m_k * params.g
     sign = -1.0 if rig.convention == "gap" else 1.0    # record coordinate = sign * x
     v = np.linspace(-3 * b["v_s"], 3 * b["v_s"], 241)
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4.5))
+    fig, ax = _figure((11, 4.5), 1, 2)
     for j, xi in enumerate((-0.8, 0.0, 0.8)):
         x = b["x_c"] + xi * b["x_s"]
         pos = 1e3 * float(rig.from_x(np.array([x]))[0])
@@ -1449,7 +1444,6 @@ def correction_plot(rig: Rig, co: RigCorrection, params: PlantParams, path: Path
                  f"{-100 * co.held_out_gain:+.1f} %)", fontsize=11)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -1897,21 +1891,27 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
             return calibration_segment(x)
         if kind == "val":
             return validation_segment(x)
-        if kind == "before":
-            return figures(rig, x, rig.params)
-        # "plot": the replays of prediction.png (_plots), kept by _cached
-        predict(rig, x, params, PLOT_HORIZON_S, noise=noise)
-        predict(rig, x, params, x.ts, use_current=False, noise=noise)
-        return None
+        return figures(rig, x, rig.params)   # "before"
 
-    # every segment's figures (before and after calibration), own coil and own force gain, and the
-    # replays of the plots, are independent of each other: they run side by side on the machine's
-    # cores (:func:`_map`), in one list so that both keep busy; the figures before calibration the
-    # background thread has not started yet join the list (the others it finishes meanwhile)
+    # every segment's figures (before and after calibration), own coil and own force gain are
+    # independent of each other: they run side by side on the machine's cores (:func:`_map`), in one
+    # list so that both keep busy; the figures before calibration the background thread has not
+    # started yet join the list (the others it finishes meanwhile)
     held_items = [(m, r, fb) for m, rs in held for fb in [force_balance(rig, m, params)] for r in rs]
     taken = [f.cancel() for f in before_jobs]
     work = ([("cal", r) for r in segs] + [("val", it) for it in held_items]
-            + [("before", r) for r, t in zip(every_seg, taken) if t] + [("plot", r) for r in segs[:1]])
+            + [("before", r) for r, t in zip(every_seg, taken) if t])
+    # the plots that need only the calibrated model are drawn on the background thread meanwhile
+    # (matplotlib's Python beside the replays, which release the GIL; 2.8 s of plots at the end of a
+    # 15 s record's diagnosis before), all on that one thread (matplotlib is not thread-safe)
+    out.mkdir(parents=True, exist_ok=True)
+    plot_jobs = {}
+    if segs:
+        plot_jobs["prediction"] = background.submit(prediction_plot, rig, segs[0], params, out, noise, black_box)
+        plot_jobs["frequency"] = background.submit(frequency_plot, rig, segs[0], params, out)
+    if result.correction is not None:
+        plot_jobs["correction"] = background.submit(correction_plot, rig, result.correction, params,
+                                                    out / "correction.png")
     done = _map(job, work)
     n_seg = len(every_seg)
     again = iter(done[n_seg:])
@@ -2040,11 +2040,10 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
     result.parameters = {**{n: float(getattr(params, n)) for n in (*COIL_FIT[rig.drive], *mech)},
                          **(result.effects.parameters if result.effects else {}),
                          **(result.second_force_lag or {}).get("values", {})}
-    out.mkdir(parents=True, exist_ok=True)
-    plots = (_plots(rig, segs[:1], params, out, noise, black_box,
-                    [*figs_after, *(v.after for v in result.validation)]) if segs else [])
-    if result.correction is not None:
-        plots.append(correction_plot(rig, result.correction, params, out / "correction.png"))
+    if segs:
+        plot_jobs["drift"] = background.submit(drift_plot, [*figs_after, *(v.after for v in result.validation)], out)
+    plots = [p for k in ("prediction", "drift", "frequency", "correction") if k in plot_jobs
+             for p in [plot_jobs[k].result()] if p is not None]
     _shared_keys(result, train, held)
     written = [out / json_name, out / "report.md", out / "report.html", *plots]
     (out / "report.md").write_text(_markdown(result, plots))
@@ -2368,22 +2367,27 @@ def event_windows(r: RigRecord, y_pred: np.ndarray, h: int) -> list[tuple[str, i
 
 
 def _load_matplotlib() -> None:
-    """Imports matplotlib with the backend :func:`_plots` sets (a second of imports, done ahead)."""
-    import matplotlib
+    """Imports what the plots use (a second of imports, done ahead)."""
+    import importlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot  # noqa: F401
+    for name in ("matplotlib.figure", "matplotlib.backends.backend_agg"):
+        importlib.import_module(name)
 
 
-def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, noise: dict[str, float] | None = None,
-           black_box: dict | None = None, figs: Sequence[RigFigures] = ()) -> list[Path]:
-    import matplotlib
+def _figure(figsize: tuple[float, float], *grid: int, **kw):
+    """A figure and its axes (``Figure.subplots(*grid, **kw)``) without pyplot: no global list of
+    figures, so the plots can be drawn on the background thread while the stages run (``savefig``
+    renders with Agg)."""
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(*grid, **kw)
 
-    r = segs[0]
-    written = []
+
+def prediction_plot(rig: Rig, r: RigRecord, params: PlantParams, out: Path, noise: dict[str, float] | None = None,
+                    black_box: dict | None = None) -> Path:
+    """prediction.png: the gap :data:`PLOT_HORIZON_S` ahead (model, black box, "stays put") and the
+    current from the actuator signal, in the windows of the record's events (:func:`event_windows`)."""
     hs = PLOT_HORIZON_S
     h = _lag(r, hs)
     o = predict(rig, r, params, hs, noise=noise)
@@ -2392,7 +2396,7 @@ def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, nois
           if black_box and hs in black_box else None)
     t = np.arange(len(r.y)) * r.ts
     wins = event_windows(r, o["y_pred"], h)
-    fig, ax = plt.subplots(2, len(wins), figsize=(11, 6.5), sharex="col", squeeze=False)
+    fig, ax = _figure((11, 6.5), 2, len(wins), sharex="col", squeeze=False)
     for j, (title, k0, k1) in enumerate(wins):
         sl = slice(k0, k1)
         a = ax[0, j]
@@ -2415,11 +2419,15 @@ def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, nois
     fig.tight_layout(rect=(0, 0.08, 1, 1))
     p = out / "prediction.png"
     fig.savefig(p, dpi=110)
-    plt.close(fig)
-    written.append(p)
+    return p
+
+
+def drift_plot(figs: Sequence[RigFigures], out: Path) -> Path | None:
+    """drift.png: the random force the filter estimates, per segment, in :data:`DRIFT_BLOCK_S` means
+    with ±2σ (None: no segment has its trajectory)."""
     drifts = [(f.label, f.drift) for f in figs if f.drift is not None and f.drift.t_s]
     if drifts:
-        fig, a = plt.subplots(figsize=(9, 4.5))
+        fig, a = _figure((9, 4.5))
         for j, (label, d) in enumerate(drifts):
             tt, m, s2 = (np.asarray(v) for v in (d.t_s, d.force_pct_weight, d.two_sigma_pct_weight))
             a.plot(tt, m, color=f"C{j % 10}", lw=1.2, label=label)
@@ -2433,14 +2441,19 @@ def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, nois
         fig.tight_layout()
         p = out / "drift.png"
         fig.savefig(p, dpi=110)
-        plt.close(fig)
-        written.append(p)
+        return p
+    return None
+
+
+def frequency_plot(rig: Rig, r: RigRecord, params: PlantParams, out: Path) -> Path | None:
+    """frequency_response.png: current to gap, measured (Welch; faded where the coherence is below
+    :data:`MIN_COHERENCE`) and the model linearised, with the band the figures use (None: no response)."""
     frf = current_to_position(rig, r, params)
     if frf:
         f = frf["f_Hz"]
         band = (f > 0.3) & (f < 60)
         good = band & (frf["coherence"] >= MIN_COHERENCE)
-        fig, ax = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+        fig, ax = _figure((8, 7), 3, 1, sharex=True)
         meas_gain = np.abs(frf["measured"])
         meas_phase = np.degrees(np.angle(frf["measured"]))
         for a, mv, model in ((ax[0], meas_gain, np.abs(frf["model"])),
@@ -2465,6 +2478,5 @@ def _plots(rig: Rig, segs: list[RigRecord], params: PlantParams, out: Path, nois
         fig.tight_layout()
         p = out / "frequency_response.png"
         fig.savefig(p, dpi=110)
-        plt.close(fig)
-        written.append(p)
-    return written
+        return p
+    return None
