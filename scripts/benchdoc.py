@@ -12,6 +12,7 @@ import platform
 import re
 import shlex
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,13 +46,29 @@ def command_line() -> str:
     return " ".join([".venv/bin/python", shlex.quote(str(script)), *map(shlex.quote, sys.argv[1:])])
 
 
+def reference_seconds(repeat: int = 3) -> float:
+    """A fixed workload no code of the project touches, timed here (best of ``repeat``) [s]: 2·10^6
+    multiply-adds in a pure-Python loop. Two machines that report the same CPU model (virtual
+    machines do) may differ by half in speed; a section's figures scale roughly with this one, so
+    sections measured on different machines can be compared."""
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        acc = 0
+        for k in range(2_000_000):
+            acc += k * k
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
 def stamp(wall_s: float, command: str | None = None) -> str:
     """The provenance line a section starts with."""
     try:
         load = f"; 1-minute load average {os.getloadavg()[0]:.1f} at the end (the run counts about 1)"
     except OSError:
         load = ""
-    return (f"Written by `{command or command_line()}` on {datetime.date.today().isoformat()} ({machine()}); "
+    return (f"Written by `{command or command_line()}` on {datetime.date.today().isoformat()} ({machine()}; "
+            f"machine reference {1e3 * reference_seconds():.0f} ms, `benchdoc.reference_seconds`); "
             f"wall time {wall_s:.0f} s{load}.")
 
 
