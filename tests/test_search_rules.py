@@ -248,3 +248,42 @@ def test_a_free_run_fit_on_the_ridge_of_an_absorbed_effect_is_mended_by_the_k_st
     mended = pipeline._kstep_ridge(whole, parts, ridge, said.append)
     assert "taken" in said[-1], said
     assert abs(mended["i_max"] / I_MAX - 1) < 0.02, mended["i_max"]
+
+
+def test_distance_from_off_in_standard_errors():
+    """Each effect's distance from switching it off, in its standard errors: a bend from 0, a limit
+    from the 1.5 A the D/A range implies, a lag from 0; None without a usable σ."""
+    assert CATALOGUE["sensor_nonlinearity"].distance_from_off({"k_x2": -851.0}, {"k_x2": 1915.0}) == pytest.approx(0.444, abs=1e-3)
+    assert CATALOGUE["current_saturation"].distance_from_off({"i_max": 0.754}, {"i_max": 0.003}) == pytest.approx(248.667, abs=1e-3)
+    assert CATALOGUE["delay"].distance_from_off({"T_d": 3e-4}, {"T_d": 1e-4}) == pytest.approx(3.0)
+    assert CATALOGUE["force_exponent"].distance_from_off({"n_F": 2.1}, {"n_F": 0.2}) == pytest.approx(0.5)
+    assert CATALOGUE["delay"].distance_from_off({"T_d": 3e-4}, {"T_d": float("nan")}) is None
+    assert CATALOGUE["delay"].distance_from_off({"T_d": 3e-4}, {}) is None
+    assert all(e.off_values for e in CATALOGUE.values())
+
+
+def test_a_faint_second_effect_leaves_the_final_model(monkeypatch):
+    """The final refit drops an effect after the first whose parameter lies within 2σ of off (the
+    record does not tell it from its absence), and refits without it; the first effect stays however
+    faint (it passed against the baseline), and a second one beyond 2σ stays."""
+    calls = []
+
+    def fake_refit(prob, current, selected, say):
+        calls.append(list(selected))
+        values = {"i_max": 0.754, "k_x2": current.get("k_x2", -851.0), "T_d": 3e-4}
+        unc = {"i_max": 0.5, "k_x2": 1915.0, "T_d": 5e-5}
+        return values, unc
+
+    class Prob:
+        base = {"k_x2": 0.0, "i_max": 1.5, "T_d": 0.0}
+
+    monkeypatch.setattr(pipeline, "_refit", fake_refit)
+    selected = ["current_saturation", "sensor_nonlinearity"]
+    values, _ = pipeline.refit(Prob(), {"k_x2": -851.0}, selected, lambda s: None)
+    assert selected == ["current_saturation"]            # the bend, 0.44σ from off, left
+    assert calls == [["current_saturation", "sensor_nonlinearity"], ["current_saturation"]]
+    assert values["k_x2"] == 0.0                          # refitted with the bend off
+    calls.clear()
+    selected = ["current_saturation", "delay"]            # the limit 1.5σ from off stays (first); the delay, 6σ
+    pipeline.refit(Prob(), {}, selected, lambda s: None)
+    assert selected == ["current_saturation", "delay"] and len(calls) == 1

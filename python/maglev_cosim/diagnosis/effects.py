@@ -73,6 +73,23 @@ class Effect(Parameterization):
     #: Calibrated baseline parameters that can mimic the effect, so that from their calibrated
     #: values the effect's fit may end off: such a fit is retried from where the calibration started.
     absorbed_by: tuple[str, ...] = ()
+    #: The values of the parameters that switch the effect off (a lag of 0, a bend of 0, a limit at
+    #: the 1.5 A the D/A range implies): :meth:`distance_from_off` measures the fit from them.
+    off_values: dict[str, float] = {}
+
+    def distance_from_off(self, values: Mapping[str, float], sigma: Mapping[str, float]) -> float | None:
+        """How far the fitted ``values`` lie from switching the effect off, in their standard errors
+        ``sigma``: the largest ``|value - off| / σ`` over :attr:`off_values` (None where a σ is not
+        finite and positive, or the effect has no off values). Under 2, "off" lies within the fit's
+        ±2σ: the record does not tell the effect from its absence."""
+        out = None
+        for name, off in self.off_values.items():
+            sd = sigma.get(name)
+            if name not in values or sd is None or not (math.isfinite(sd) and sd > 0):
+                return None
+            z = abs(float(values[name]) - off) / sd
+            out = z if out is None else max(out, z)
+        return out
     #: A magnitude at which the effect is planted in synthetic records (the benchmark's rows, the
     #: tests), and the relative tolerance within which the diagnosis recovers each of its values
     #: there (``tests/test_diagnose.py``; an empty ``tolerance``: the effect is not expected to be found).
@@ -172,6 +189,7 @@ class _TimeConstant(Effect):
         self.name, self.description, self.location = name, description, location
         self.coords = (Coord(self.params[0], 1e-3, lo, 0.05),)
         self.example, self.tolerance = {self.params[0]: example}, {self.params[0]: tolerance}
+        self.off_values = {self.params[0]: 0.0}
         self.not_for = dict(not_for or {})
         self.drives = tuple(d for d in DRIVES if d not in self.not_for)
 
@@ -189,6 +207,7 @@ class _TimeConstant(Effect):
 
 class SensorNonlinearity(Effect):
     name = "sensor_nonlinearity"
+    off_values = {"k_x2": 0.0}
     description = "the sensor's deviation k_x2*x*(x - x_cal) from the two-point fit of Eq. 12"
     location = "sensor"
     example = {"k_x2": -30000.0}
@@ -242,6 +261,7 @@ class SensorNonlinearity(Effect):
 
 class CurrentSaturation(Effect):
     name = "current_saturation"
+    off_values = {"i_max": 1.5}
     description = "an amplifier current limit i_max below the 1.5 A the D/A range implies"
     location = "actuator"
     example = {"i_max": 0.85}
@@ -399,6 +419,7 @@ class PeriodicDisturbance(Effect):
     nearly linear in (a, b), while (A_d, phi_d) make a poorly shaped problem."""
 
     name = "periodic_disturbance"
+    off_values = {"A_d": 0.0}
     description = "sinusoidal pickup A_d*sin(2*pi*f_d*t + phi_d) on the sensor voltage"
     location = "sensor"
     example = {"A_d": 0.008, "f_d": 37.0, "phi_d": 1.0}
@@ -621,6 +642,7 @@ class CoulombFriction(Effect):
     friction turns into the damping ``k_FV`` the baseline already has."""
 
     name = "coulomb_friction"
+    off_values = {"F_c": 0.0}
     description = "Coulomb friction F_c*tanh(v/v_c) on the moving ball (guide, air, cable drag), v_c fitted"
     location = "mechanics"
     example = {"F_c": 2e-3}
@@ -649,6 +671,7 @@ class ForceExponent(Effect):
     that changing ``n_F`` bends the law without moving the equilibrium ``k_c`` and ``x_0`` hold."""
 
     name = "force_exponent"
+    off_values = {"n_F": 2.0}
     description = "a force law k_c*i^2/(x_0 - x)^n_F with n_F other than Eq. 8's 2"
     location = "mechanics"
     example = {"n_F": 3.0}
@@ -698,6 +721,7 @@ class ForceExponent(Effect):
 
 class AmplifierDeadZone(Effect):
     name = "amplifier_dead_zone"
+    off_values = {"u_dz": 0.0}
     description = "a dead zone of half-width u_dz [V] around 0 V at the amplifier's input"
     location = "actuator"
     example = {"u_dz": 0.5}
@@ -731,6 +755,7 @@ class SensorDrift(Effect):
     beside it, warming up): the loop holds the reading, so the ball drifts and the current with it."""
 
     name = "sensor_drift"
+    off_values = {"r_y": 0.0}
     description = "the sensor voltage's offset drifting at r_y [V/s] through the record (warm-up)"
     location = "sensor"
     example = {"r_y": 0.01}
@@ -756,6 +781,7 @@ class EddyLag(Effect):
     between the fast and the slow ones). The ball feels ``(1 - beta_F)*F_fast + beta_F*F2``."""
 
     name = "eddy_lag"
+    off_values = {"beta_F": 0.0}
     description = ("a share beta_F of the magnetic force following the static law through a second, slower lag "
                    "T_F2 (eddy currents in the core)")
     location = "mechanics"
@@ -782,6 +808,7 @@ class ForceGainDrift(Effect):
     answers with a slowly falling (or rising) current while the ball holds its place."""
 
     name = "force_gain_drift"
+    off_values = {"kappa_c": 0.0}
     description = "the magnet's force gain drifting as k_c*(1 + kappa_c*t) through the record (coil heating)"
     location = "mechanics"
     example = {"kappa_c": 0.01}

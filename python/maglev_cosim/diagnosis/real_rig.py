@@ -20,6 +20,7 @@ several records at once by least squares on the 20 ms prediction errors of gap a
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import os
 import threading
@@ -2368,8 +2369,6 @@ def event_windows(r: RigRecord, y_pred: np.ndarray, h: int) -> list[tuple[str, i
 
 def _load_matplotlib() -> None:
     """Imports what the plots use (a second of imports, done ahead)."""
-    import importlib
-
     for name in ("matplotlib.figure", "matplotlib.backends.backend_agg"):
         importlib.import_module(name)
 
