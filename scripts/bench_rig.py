@@ -120,11 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     res = diagnose(cal, rig="inteco-mls2em", validate=val, out=a.out,
                    progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True)).to_json()
     wall = time.perf_counter() - t0
-    text = section(res, command, wall)
-    print(text)
-    if not a.no_write:
-        benchdoc.replace_section(text)
-        print(f"wrote the section of {benchdoc.DOC}")
+    benchdoc.publish(section(res, command, wall), write=not a.no_write)
     return 0
 
 

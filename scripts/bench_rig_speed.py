@@ -92,11 +92,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{N_VALIDATION} validation records (the six shared ones, then the six again, then the first "
               f"three, each copied under its own name): **{wall_cal:.1f} s** wall (target {TARGETS_S[1]:g} s); "
               f"verdict {verdict_cal}.")
-    text = benchdoc.section(TITLE, body, time.perf_counter() - t_start)
-    print(text)
-    if not a.no_write:
-        benchdoc.replace_section(text)
-        print(f"wrote the section of {benchdoc.DOC}")
+    benchdoc.publish(benchdoc.section(TITLE, body, time.perf_counter() - t_start), write=not a.no_write)
     return 0
 
 

@@ -84,6 +84,15 @@ def replace_section(text: str, doc: Path = DOC) -> str:
     return text
 
 
+def publish(text: str, write: bool = True, doc: Path = DOC) -> None:
+    """Prints a section (from :func:`section`) and, with ``write``, puts it into ``doc``
+    (:func:`replace_section`)."""
+    print(text)
+    if write:
+        replace_section(text, doc)
+        print(f"wrote the section of {doc}")
+
+
 def section(title: str, body: str, wall_s: float, *, command: str | None = None) -> str:
     """The section ``## title``: the stamp, then ``body``."""
     return f"## {title}\n\n{stamp(wall_s, command)}\n\n{body.strip()}\n"

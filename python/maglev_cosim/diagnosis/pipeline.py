@@ -884,23 +884,24 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
     effect the refit turns off (:meth:`~.effects.Effect.is_off`) leaves the model (``selected``
     is updated in place) and the rest is refitted without it; so does an effect after the first
     whose parameter lies within :data:`MIN_SECOND_EFFECT_SIGMA` standard errors of off."""
+    def without(effects: Sequence[str]) -> tuple[dict, dict]:
+        nonlocal current
+        for e in effects:
+            selected.remove(e)
+            current = turned_off(prob, e, current)
+        return _refit(prob, current, selected, say)
+
     values, unc = _refit(prob, current, selected, say)
     dropped = [e for e in selected if CATALOGUE[e].is_off(values)]
     if dropped:
         say(f"the refit turned {', '.join(dropped)} off: refitting without it")
-        for e in dropped:
-            selected.remove(e)
-            current = turned_off(prob, e, current)
-        values, unc = _refit(prob, current, selected, say)
+        values, unc = without(dropped)
     faint = [(e, z) for e in selected[1:] for z in [CATALOGUE[e].distance_from_off(values, unc)]
              if z is not None and z < MIN_SECOND_EFFECT_SIGMA]
     if faint:
         say("the refit leaves " + ", ".join(f"{e} within {z:.1f}σ of off" for e, z in faint)
             + f" (at least {MIN_SECOND_EFFECT_SIGMA:g}σ needed): refitting without it")
-        for e, _ in faint:
-            selected.remove(e)
-            current = turned_off(prob, e, current)
-        values, unc = _refit(prob, current, selected, say)
+        values, unc = without([e for e, _ in faint])
     return values, unc
 
 
