@@ -706,7 +706,8 @@ static double substep_max(const MaglevPlant *m, SetBy *by) {
          * atan(-b_i), and the ball's terms (L_x, L_g >= 0) only add. (The bound was L_0 - L_i*pi/2, a
          * current far below 0: on the Inteco rig 3.3 ms against 9.4 ms, which held a 1 kHz replay to
          * substeps of 0.66 ms, and the coil's atan was a quarter of a real-record diagnosis.) */
-        double tau_e = (P(m, L_0) + P(m, L_i) * atan(-P(m, b_i))) / (r > P(m, R_c) ? r : P(m, R_c));
+        double lowest = m->atan_b_key == P(m, b_i) ? m->atan_b : atan(-P(m, b_i)); /* maglev_step's cache */
+        double tau_e = (P(m, L_0) + P(m, L_i) * lowest) / (r > P(m, R_c) ? r : P(m, R_c));
         if (tau_e / 5 < h) {
             h = tau_e / 5;
             *by = BY_VOLTAGE_DRIVE;
@@ -1066,6 +1067,11 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
     if (!(fabs(t_end) <= MAGLEV_TIME_MAX)) {
         fail(msg, len, "a step to t = %g s leaves the time range +-%g s", t_end, MAGLEV_TIME_MAX);
         return MAGLEV_REFUSED;
+    }
+    if (m->atan_b_key != P(m, b_i)) { /* substep_max's bound on a voltage drive's inductance, once per b_i: it
+                                          * is asked three times a step, and atan was a fifth of a real-rig diagnosis */
+        m->atan_b_key = P(m, b_i);
+        m->atan_b = atan(-P(m, b_i));
     }
     long work = 0;
     /* The work budget is decided before integrating, so that a step it refuses costs nothing. A piece

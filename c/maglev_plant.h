@@ -94,6 +94,7 @@ typedef struct {
     int etd_next;               /* the slot the next new weights replace */
     MaglevTransient tr[2];      /* a cache like etd, for the current's transient */
     int tr_next;
+    double atan_b_key, atan_b;  /* a cache like etd: atan(-b_i) for b_i = atan_b_key (zeroed: b_i = 0, atan 0) */
     long work;                  /* RK4 evaluations the last maglev_step spent: a statistic, not state (0 for a
                                    step refused before integrating; not serialized) */
 } MaglevPlant;
