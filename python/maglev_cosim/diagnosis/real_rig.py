@@ -1065,8 +1065,8 @@ def _gains(held: dict[str, float], base: dict[str, float]) -> tuple[float, dict[
 
 
 def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, say=lambda s: None, *,
-                  max_effects: int = 2, noise: dict[str, float] | None = None, skip: Sequence[str] = ()
-                  ) -> RigSearch:
+                  max_effects: int = 2, noise: dict[str, float] | None = None, skip: Sequence[str] = (),
+                  refit_follows: bool = False) -> RigSearch:
     """The catalogue's effects that the rig's drive and force law can take (:func:`rig_candidates`: every
     entry of :data:`~.effects.CATALOGUE` that applies, and the real-rig extras) tried on its calibrated
     model, in greedy rounds: each effect not yet selected is fitted on the even held-out blocks and
@@ -1090,7 +1090,10 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
     ``selected``, ``parameters`` (the selected effects' fitted values), ``computed`` (the values they
     computed from the records: the force exponent's pivot) and ``held_out_cost`` of the model without
     an effect. ``noise``: the filter's disturbance model (default :func:`noise_defaults`); ``skip``:
-    parameters the calibration fits already (their effects are not tried again)."""
+    parameters the calibration fits already (their effects are not tried again). ``refit_follows``: the
+    caller refits the selected effects on every block with the rest (:func:`calibrate`), so the last
+    round's selection keeps its values from the even blocks (its fit on every block would only be that
+    refit's starting point: a Nelder-Mead of 30-40 replays, one or two at a time)."""
     cands = rig_candidates(rig, records, params, skip)
     offered = rig_offer(rig.drive, force_law(_values_of(params)))
     out = RigSearch(held_out_cost=prediction_cost(rig, records, params, parity=1, noise=noise), block_s=EFFECT_BLOCK_S,
@@ -1148,9 +1151,12 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
         tried = _map(candidate, todo)
         out.candidates += tried
         best = max(tried, key=lambda c: c.held_out_gain, default=None)
+        last = refit_follows and rnd == max_effects
         if best and best.held_out_gain >= MIN_EFFECT_GAIN:
             c = by_name[best.effect]
-            if len(c.coords) == 1:
+            if last:
+                z = tuple(best.values[n] for n in c.names)
+            elif len(c.coords) == 1:
                 z, _ = _fit_one(rig, records, current, c, parity=None, noise=noise)
             else:
                 (z,), _ = _fit_joint(rig, records, current, [c], [[best.values[n] for n in c.names]],
@@ -1182,8 +1188,9 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
             out.last_round_empty = True
             break
         members = [by_name[n] for n in best.effects]
-        z, _ = _fit_joint(rig, records, current, members, [[best.values[n] for n in m.names] for m in members],
-                          parity=None, noise=noise)
+        z = [[best.values[n] for n in m.names] for m in members]
+        if not last:
+            z, _ = _fit_joint(rig, records, current, members, z, parity=None, noise=noise)
         for m, zc in zip(members, z):
             vals = m.to_values(zc)
             current = current.replace(**vals)
@@ -1820,7 +1827,8 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
         second = tuple(SECOND_FORCE_LAG) if mode else ()
         # the second force lag is the catalogue's eddy_lag: never tried by the effect search when the
         # calibration fits it (RIG_LEFT_OUT leaves it out of the search in any case, for now)
-        search = result.effects = effect_search(rig, fit_on, params, say, noise=noise, skip=mech + ("T_d",) + second)
+        search = result.effects = effect_search(rig, fit_on, params, say, noise=noise, skip=mech + ("T_d",) + second,
+                                                refit_follows=True)
         chosen = list(search.parameters)
         params = params.replace(**search.parameters, **search.computed)
         joint = second if mode == "joint" else ()
