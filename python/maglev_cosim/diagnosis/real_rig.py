@@ -491,6 +491,10 @@ CAL_FTOL = 1e-6
 #: Horizons [s] whose prediction errors :func:`calibrate` minimises (the long one is where an
 #: unstable plant's model errors show; the short one keeps the fast dynamics).
 CAL_HORIZONS_S = (0.020, 0.050)
+#: The calibration's Jacobian by differences (one replay per parameter, two at a time on the 2-core
+#: machine) at its first point and every CAL_JAC_REFRESH-th accepted point after; Broyden's rank-one
+#: update at those between (:func:`_threaded_jacobian`). 1: differences at every point.
+CAL_JAC_REFRESH = 3
 
 
 def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None = None, *,
@@ -586,8 +590,10 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
         return np.concatenate(parts) / np.sqrt(len(records))
 
     r0 = resid(z0)
-    fun, jac = _threaded_jacobian(resid, lo, hi, 1e-3)
+    fun, jac = _threaded_jacobian(resid, lo, hi, 1e-3, refresh=CAL_JAC_REFRESH if len(z0) > 2 else 1, scale=scale)
     sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), x_scale=scale, max_nfev=max_evaluations, ftol=CAL_FTOL)
+    if CAL_JAC_REFRESH > 1 and len(z0) > 2:
+        sol.jac = jac.differences(sol.x)   # the standard errors below need differences, not Broyden's update
     p, nz = make(sol.x)
     # ±1σ of the parameters from the Jacobian at the solution (white, independent prediction errors
     # assumed: the errors of overlapping horizons are correlated, so this is a lower bound)
@@ -724,11 +730,20 @@ def _map(fn, items: Sequence) -> list:
     return mine.results
 
 
-def _threaded_jacobian(fun, lo: np.ndarray, hi: np.ndarray, rel_step: float):
+def _threaded_jacobian(fun, lo: np.ndarray, hi: np.ndarray, rel_step: float, *, refresh: int = 1,
+                       scale: np.ndarray | None = None):
     """``(fun, jac)`` for ``least_squares``: ``fun`` remembers its last point, and ``jac`` is
     scipy's forward-difference Jacobian (step ``rel_step·max(1, |z|)`` with the sign of ``z``,
-    reversed at an upper bound) with its columns evaluated side by side (:func:`_map`)."""
+    reversed at an upper bound) with its columns evaluated side by side (:func:`_map`).
+
+    ``refresh`` > 1: the differences are taken at the first call and every ``refresh``-th after it;
+    the calls between update the last Jacobian by Broyden's rank-one formula from the last two points
+    asked (``least_squares`` asks at its accepted points), in the coordinates divided by ``scale``
+    (its ``x_scale``), which costs no replay. ``jac.differences(z)`` is the difference Jacobian at
+    ``z`` whatever ``refresh`` says (the standard errors need it at the solution)."""
     last: dict = {}
+    memo: dict = {"calls": 0}
+    s2 = np.ones(len(lo)) if scale is None else np.asarray(scale, float) ** 2
 
     def f(z: np.ndarray) -> np.ndarray:
         v = fun(z)
@@ -736,7 +751,7 @@ def _threaded_jacobian(fun, lo: np.ndarray, hi: np.ndarray, rel_step: float):
         last[z.tobytes()] = v
         return v
 
-    def jac(z: np.ndarray) -> np.ndarray:
+    def differences(z: np.ndarray) -> np.ndarray:
         f0 = last.get(z.tobytes())
         if f0 is None:
             f0 = f(z)
@@ -751,6 +766,23 @@ def _threaded_jacobian(fun, lo: np.ndarray, hi: np.ndarray, rel_step: float):
 
         return np.stack(_map(column, range(len(z))), axis=1)
 
+    def jac(z: np.ndarray) -> np.ndarray:
+        f0 = last.get(z.tobytes())
+        if f0 is None:
+            f0 = f(z)
+        k = memo["calls"]
+        memo["calls"] += 1
+        J = memo.get("J")
+        dz = z - memo["z"] if J is not None else None
+        if refresh > 1 and k % refresh and dz is not None and np.any(dz != 0):
+            w = dz / s2                      # the step in scaled coordinates, scaled back: Broyden's minimal change
+            J = J + np.outer(f0 - memo["f"] - J @ dz, w) / float(dz @ w)
+        else:
+            J = differences(z)
+        memo.update(z=z.copy(), f=f0, J=J)
+        return J
+
+    jac.differences = differences
     return f, jac
 
 
