@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from maglev_cosim.plant.params import PlantParams, get_params
+from maglev_cosim.plant.params import get_params
 from maglev_cosim.rigs import RigError, load_rig, rig_names
 
 from real_data import REAL

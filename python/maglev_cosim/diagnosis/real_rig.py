@@ -51,6 +51,7 @@ from ..rigs import Rig
 from . import blackbox as bb
 from . import reaction
 from .effects import CATALOGUE, force_law
+from .jacobian import difference_jacobian
 from .metrics import nrmse_fit
 from .neldermead import nelder_mead
 from .problem import Coord
@@ -447,7 +448,7 @@ def calibrate_coil(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
     hi = np.where(delay, 1e3 * COIL_DELAY_BOUNDS[1],
                   np.where(drift, 1e3 * COIL_DRIFT_BOUNDS[1], np.where(additive, 1.0, 2.0)))
     z0 = np.where(delay, np.clip(1e3 * base, 1.0, None), np.where(drift, 1e3 * base, np.where(additive, 0.0, 1.0)))
-    fun, jac = _threaded_jacobian(resid, lo, hi, 1e-4)
+    fun, jac = difference_jacobian(resid, lo, hi, 1e-4, map_fn=_map, unit_floor=True)
     sol = least_squares(fun, np.clip(z0, lo, hi), jac=jac, bounds=(lo, hi),
                         x_scale=np.where(delay, 0.5, 0.05), max_nfev=30)
     p = make(sol.x)
@@ -493,7 +494,7 @@ CAL_FTOL = 1e-6
 CAL_HORIZONS_S = (0.020, 0.050)
 #: The calibration's Jacobian by differences (one replay per parameter, two at a time on the 2-core
 #: machine) at its first point and every CAL_JAC_REFRESH-th accepted point after; Broyden's rank-one
-#: update at those between (:func:`_threaded_jacobian`). 1: differences at every point.
+#: update at those between (:func:`~.jacobian.difference_jacobian`). 1: differences at every point.
 CAL_JAC_REFRESH = 3
 
 
@@ -590,7 +591,8 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
         return np.concatenate(parts) / np.sqrt(len(records))
 
     r0 = resid(z0)
-    fun, jac = _threaded_jacobian(resid, lo, hi, 1e-3, refresh=CAL_JAC_REFRESH if len(z0) > 2 else 1, scale=scale)
+    fun, jac = difference_jacobian(resid, lo, hi, 1e-3, map_fn=_map, unit_floor=True,
+                                   refresh=CAL_JAC_REFRESH if len(z0) > 2 else 1, scale=scale)
     sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), x_scale=scale, max_nfev=max_evaluations, ftol=CAL_FTOL)
     if CAL_JAC_REFRESH > 1 and len(z0) > 2:
         sol.jac = jac.differences(sol.x)   # the standard errors below need differences, not Broyden's update
@@ -728,62 +730,6 @@ def _map(fn, items: Sequence) -> list:
         if e is not None:
             raise e
     return mine.results
-
-
-def _threaded_jacobian(fun, lo: np.ndarray, hi: np.ndarray, rel_step: float, *, refresh: int = 1,
-                       scale: np.ndarray | None = None):
-    """``(fun, jac)`` for ``least_squares``: ``fun`` remembers its last point, and ``jac`` is
-    scipy's forward-difference Jacobian (step ``rel_step·max(1, |z|)`` with the sign of ``z``,
-    reversed at an upper bound) with its columns evaluated side by side (:func:`_map`).
-
-    ``refresh`` > 1: the differences are taken at the first call and every ``refresh``-th after it;
-    the calls between update the last Jacobian by Broyden's rank-one formula from the last two points
-    asked (``least_squares`` asks at its accepted points), in the coordinates divided by ``scale``
-    (its ``x_scale``), which costs no replay. ``jac.differences(z)`` is the difference Jacobian at
-    ``z`` whatever ``refresh`` says (the standard errors need it at the solution)."""
-    last: dict = {}
-    memo: dict = {"calls": 0}
-    s2 = np.ones(len(lo)) if scale is None else np.asarray(scale, float) ** 2
-
-    def f(z: np.ndarray) -> np.ndarray:
-        v = fun(z)
-        last.clear()
-        last[z.tobytes()] = v
-        return v
-
-    def differences(z: np.ndarray) -> np.ndarray:
-        f0 = last.get(z.tobytes())
-        if f0 is None:
-            f0 = f(z)
-        h = rel_step * np.where(z >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(z))
-        h = np.where((z + h > hi) | (z + h < lo), -h, h)
-        h = (z + h) - z
-
-        def column(k: int) -> np.ndarray:
-            zk = z.copy()
-            zk[k] += h[k]
-            return (fun(zk) - f0) / h[k]
-
-        return np.stack(_map(column, range(len(z))), axis=1)
-
-    def jac(z: np.ndarray) -> np.ndarray:
-        f0 = last.get(z.tobytes())
-        if f0 is None:
-            f0 = f(z)
-        k = memo["calls"]
-        memo["calls"] += 1
-        J = memo.get("J")
-        dz = z - memo["z"] if J is not None else None
-        if refresh > 1 and k % refresh and dz is not None and np.any(dz != 0):
-            w = dz / s2                      # the step in scaled coordinates, scaled back: Broyden's minimal change
-            J = J + np.outer(f0 - memo["f"] - J @ dz, w) / float(dz @ w)
-        else:
-            J = differences(z)
-        memo.update(z=z.copy(), f=f0, J=J)
-        return J
-
-    jac.differences = differences
-    return f, jac
 
 
 def _block_parity(r: RigRecord) -> np.ndarray:
