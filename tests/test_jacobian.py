@@ -10,7 +10,7 @@ import pytest
 from scipy.optimize import least_squares
 from scipy.optimize._numdiff import approx_derivative
 
-from maglev_cosim.diagnosis.jacobian import difference_jacobian, steps
+from maglev_cosim.diagnosis.jacobian import difference_jacobian, gauss_newton_gain, steps
 
 T = np.linspace(0.0, 1.0, 60)
 LO = np.array([0.0, 0.0, -1.0, -2.0])
@@ -95,3 +95,22 @@ def test_least_squares_with_broyden_between_refreshes_reaches_scipys_optimum_wit
     assert abs(got.cost - ref.cost) <= 1e-9 * ref.cost
     assert np.allclose(got.x, ref.x, atol=1e-5)
     assert calls[0] < ref.nfev + len(z0) * ref.njev
+
+
+def test_gauss_newton_gain_is_the_linear_fits_fall_and_zero_at_its_optimum():
+    A = np.random.default_rng(2).standard_normal((20, 3))
+    b = np.random.default_rng(3).standard_normal(20)
+    lo, hi = np.full(3, -100.0), np.full(3, 100.0)
+    best = np.linalg.lstsq(A, b, rcond=None)[0]
+    z = best + np.array([0.3, -0.2, 0.1])
+    f = A @ z - b
+    gain = gauss_newton_gain(A, f, z, lo, hi)
+    assert np.isclose(gain, 0.5 * f @ f - 0.5 * np.sum((A @ best - b) ** 2), rtol=1e-10)
+    assert abs(gauss_newton_gain(A, A @ best - b, best, lo, hi)) < 1e-12
+    # a bound in the way: the coordinate stays, the others take their best with it held
+    hi2 = np.array([z[0], 100.0, 100.0]) if best[0] > z[0] else hi
+    lo2 = np.array([z[0], -100.0, -100.0]) if best[0] < z[0] else lo
+    held = gauss_newton_gain(A, f, z, lo2, hi2)
+    sub = np.linalg.lstsq(A[:, 1:], -f, rcond=None)[0]
+    assert np.isclose(held, 0.5 * f @ f - 0.5 * np.sum((f + A[:, 1:] @ sub) ** 2), rtol=1e-10)
+    assert 0 < held < gain

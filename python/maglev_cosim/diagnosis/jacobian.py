@@ -115,3 +115,20 @@ def difference_jacobian(fun: Residuals, lo: np.ndarray, hi: np.ndarray, rel_step
 
     jac.differences = differences
     return f, jac
+
+
+def gauss_newton_gain(J: np.ndarray, f: np.ndarray, z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """The fall of the cost ½|f|² that the Gauss-Newton step of ``J`` promises from ``z`` (the
+    linearised residuals ``f + J·step`` at their least squares), with the coordinates whose step would
+    cross a bound held where they are. Near 0 at a fit's optimum; a fit that stopped short (an
+    approximate Jacobian) leaves more."""
+    free = np.ones(len(z), bool)
+    for _ in range(len(z) + 1):
+        step = np.zeros(len(z))
+        if free.any():
+            step[free] = np.linalg.lstsq(J[:, free], -f, rcond=None)[0]
+        out = free & ((z + step < lo) | (z + step > hi))
+        if not out.any():
+            break
+        free &= ~out
+    return float(0.5 * (f @ f) - 0.5 * np.sum((f + J @ step) ** 2))

@@ -51,7 +51,7 @@ from ..rigs import Rig
 from . import blackbox as bb
 from . import reaction
 from .effects import CATALOGUE, force_law
-from .jacobian import difference_jacobian
+from .jacobian import difference_jacobian, gauss_newton_gain
 from .metrics import nrmse_fit
 from .neldermead import nelder_mead
 from .problem import Coord
@@ -498,6 +498,12 @@ CAL_HORIZONS_S = (0.020, 0.050)
 CAL_JAC_REFRESH = 3
 
 
+#: :func:`calibrate` goes on with difference Jacobians at every point where, after its fit with
+#: Broyden's updates, the Gauss-Newton step of the differences would still lower the cost by this
+#: fraction of it (a hundred times ``CAL_FTOL``: the fit stopped short, not at a tolerance).
+CAL_RESTART_GAIN = 1e-4
+
+
 def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None = None, *,
               names: Sequence[str] | None = None, noise: dict[str, float] | None = None,
               horizons_s: Sequence[float] = CAL_HORIZONS_S, stride: int = 20, max_evaluations: int = 60,
@@ -595,7 +601,15 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
                                    refresh=CAL_JAC_REFRESH if len(z0) > 2 else 1, scale=scale)
     sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), x_scale=scale, max_nfev=max_evaluations, ftol=CAL_FTOL)
     if CAL_JAC_REFRESH > 1 and len(z0) > 2:
-        sol.jac = jac.differences(sol.x)   # the standard errors below need differences, not Broyden's update
+        # the standard errors below need differences, not Broyden's update; and where Broyden's
+        # Jacobian stopped short of the optimum (the Gauss-Newton step of the differences, within the
+        # bounds, would still gain CAL_RESTART_GAIN of the cost), the fit goes on with differences at
+        # every point
+        sol.jac = jac.differences(sol.x)
+        if gauss_newton_gain(sol.jac, sol.fun, sol.x, lo, hi) > CAL_RESTART_GAIN * sol.cost:
+            fun, jac = difference_jacobian(resid, lo, hi, 1e-3, map_fn=_map, unit_floor=True)
+            sol = least_squares(fun, sol.x, jac=jac, bounds=(lo, hi), x_scale=scale, max_nfev=max_evaluations,
+                                ftol=CAL_FTOL)
     p, nz = make(sol.x)
     # ±1σ of the parameters from the Jacobian at the solution (white, independent prediction errors
     # assumed: the errors of overlapping horizons are correlated, so this is a lower bound)
