@@ -57,7 +57,8 @@ def difference_jacobian(fun: Residuals, lo: np.ndarray, hi: np.ndarray, rel_step
     lo, hi : ndarray
         The bounds of ``z``.
     rel_step : float
-        The difference step relative to ``max(1, |z|)`` (``least_squares``'s ``diff_step``).
+        The difference step relative to ``|z|`` (``least_squares``'s ``diff_step``), or to
+        ``max(1, |z|)`` with ``unit_floor``.
     map_fn : callable
         ``map_fn(f, items)``: ``[f(x) for x in items]`` in order, side by side where it can.
     refresh : int

@@ -496,8 +496,6 @@ CAL_HORIZONS_S = (0.020, 0.050)
 #: machine) at its first point and every CAL_JAC_REFRESH-th accepted point after; Broyden's rank-one
 #: update at those between (:func:`~.jacobian.difference_jacobian`). 1: differences at every point.
 CAL_JAC_REFRESH = 3
-
-
 #: :func:`calibrate` goes on with difference Jacobians at every point where, after its fit with
 #: Broyden's updates, the Gauss-Newton step of the differences would still lower the cost by this
 #: fraction of it (a hundred times ``CAL_FTOL``: the fit stopped short, not at a tolerance).
@@ -597,10 +595,10 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
         return np.concatenate(parts) / np.sqrt(len(records))
 
     r0 = resid(z0)
-    fun, jac = difference_jacobian(resid, lo, hi, 1e-3, map_fn=_map, unit_floor=True,
-                                   refresh=CAL_JAC_REFRESH if len(z0) > 2 else 1, scale=scale)
+    refresh = CAL_JAC_REFRESH if len(z0) > 2 else 1
+    fun, jac = difference_jacobian(resid, lo, hi, 1e-3, map_fn=_map, unit_floor=True, refresh=refresh, scale=scale)
     sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), x_scale=scale, max_nfev=max_evaluations, ftol=CAL_FTOL)
-    if CAL_JAC_REFRESH > 1 and len(z0) > 2:
+    if refresh > 1:
         # the standard errors below need differences, not Broyden's update; and where Broyden's
         # Jacobian stopped short of the optimum (the Gauss-Newton step of the differences, within the
         # bounds, would still gain CAL_RESTART_GAIN of the cost), the fit goes on with differences at
