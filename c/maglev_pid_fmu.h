@@ -36,6 +36,6 @@ typedef enum {
 #define MAGLEV_PID_NPARAMS (MAGLEV_PID_NVARS - PID_ts)
 
 /* One row per value reference, indexed by MaglevPidVR. */
-extern const MaglevVariable maglev_pid_variables[MAGLEV_PID_NVARS];
+extern MAGLEV_VISIBLE const MaglevVariable maglev_pid_variables[MAGLEV_PID_NVARS];
 
 #endif

@@ -39,8 +39,25 @@ typedef struct {
     const char *effect;
 } MaglevVariable;
 
+/* The FMU libraries hide every symbol but the FMI functions (an importer that loads two FMUs with
+ * global symbols must not bind one's calls to the other's plant) and their own variable table: the
+ * build reads the table from the library to write modelDescription.xml (plant/model_description.py),
+ * and the tests check a shipped binary against its own table. The plant's table is exported by the
+ * plant FMU only (CMake defines MAGLEV_EXPORT_PLANT_TABLE there), not by the controller FMU, which
+ * links the plant for the replay. Elsewhere (the cffi library) every symbol is visible anyway. */
+#if defined(__GNUC__) && !defined(_WIN32)
+#define MAGLEV_VISIBLE __attribute__((visibility("default")))
+#else
+#define MAGLEV_VISIBLE
+#endif
+#ifdef MAGLEV_EXPORT_PLANT_TABLE
+#define MAGLEV_PLANT_TABLE_EXPORT MAGLEV_VISIBLE
+#else
+#define MAGLEV_PLANT_TABLE_EXPORT
+#endif
+
 /* One row per value reference, indexed by MaglevVR. */
-extern const MaglevVariable maglev_variables[MAGLEV_NVARS];
+extern MAGLEV_PLANT_TABLE_EXPORT const MaglevVariable maglev_variables[MAGLEV_NVARS];
 
 typedef enum { CONTACT_NONE = 0, CONTACT_LOWER = -1, CONTACT_UPPER = 1 } MaglevContact;
 

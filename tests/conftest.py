@@ -4,6 +4,7 @@ with ``pip install .``; ``python/`` is not on ``sys.path``): its FMU is ``maglev
 
 from __future__ import annotations
 
+import re
 import sys
 import zipfile
 from pathlib import Path
@@ -22,6 +23,16 @@ def host_binary(z: zipfile.ZipFile, model_identifier: str) -> str:
     names = [n for n in z.namelist() if n.startswith("binaries/") and n.endswith("/" + model_identifier + HOST_SUFFIX)]
     assert len(names) == 1, f"expected one {model_identifier}{HOST_SUFFIX} in {z.filename}, found {names}"
     return names[0]
+
+
+def fmi_functions(prefix: str) -> set[str]:
+    """The functions the FMI header declares (fmpy's copy of the standard's headers), ``prefix``
+    ``fmi2`` or ``fmi3``."""
+    import fmpy
+    header = Path(fmpy.__file__).parent / "c-code" / f"{prefix}Functions.h"
+    names = set(re.findall(rf"^#define ({prefix}\w+)\s+{prefix}FullName\(", header.read_text(), re.M))
+    assert len(names) > 40, f"{header}: found only {len(names)} function names"
+    return names
 
 
 @pytest.fixture(scope="session")

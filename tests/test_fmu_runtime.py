@@ -4,12 +4,19 @@ several instances and saved state."""
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
 from fmpy import extract, simulate_fmu
 from fmpy.fmi1 import FMICallException
 
+import maglev_cosim
+from conftest import fmi_functions, host_binary
+from maglev_cosim._resources import pid_fmu_path
 from maglev_cosim.loop.checks import comm_step_study, run_with_comm_step, staircase_input
 from maglev_cosim.loop.fmu import FmuError, FmuPlant
 
@@ -144,3 +151,24 @@ def test_serialized_state_round_trips_and_rejects_corruption(fmu_path):
             fmu.deSerializeFMUstate(blob[:-5])
         fmu.freeFMUstate(state)
         fmu.freeFMUstate(restored)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or shutil.which("nm") is None, reason="ELF dynamic symbols: Linux with nm")
+@pytest.mark.parametrize("fmu, identifier, prefix, table", [
+    (lambda: maglev_cosim.fmu_path(), "maglev", "fmi2", "maglev_variables"),
+    (lambda: maglev_cosim.fmu_path(fmi_version=3), "maglev", "fmi3", "maglev_variables"),
+    (lambda: pid_fmu_path(), "maglev_pid", "fmi2", "maglev_pid_variables"),
+    (lambda: pid_fmu_path(fmi_version=3), "maglev_pid", "fmi3", "maglev_pid_variables")],
+    ids=["plant", "plant3", "pid", "pid3"])
+def test_the_shared_library_exports_exactly_the_fmi_functions(fmu, identifier, prefix, table, tmp_path):
+    """Like the Windows DLL's export table (test_win64.py): the plant's own functions (maglev_step, ...) are
+    hidden, so that an importer that loads two FMUs, or a library of its own, with global symbols cannot
+    bind one's calls to the other's copy (whose plant may be another version). Beside the FMI functions
+    only the FMU's variable table is exported: the build writes modelDescription.xml from it, and
+    test_model_description.py reads it from the shipped binary."""
+    with zipfile.ZipFile(fmu()) as z:
+        so = Path(z.extract(host_binary(z, identifier), tmp_path))
+    out = subprocess.run(["nm", "-D", "--defined-only", str(so)], capture_output=True, text=True, check=True).stdout
+    exported = {ln.split()[-1] for ln in out.splitlines() if ln.strip()}
+    want = fmi_functions(prefix) | {table}
+    assert exported == want, f"{so.name}: missing {sorted(want - exported)}, extra {sorted(exported - want)}"

@@ -235,14 +235,13 @@ def test_the_innovations_credit_the_effect_not_the_candidates_other_calibration(
 
 def test_a_free_run_fit_on_the_ridge_of_an_absorbed_effect_is_mended_by_the_k_step_fit(limited):
     """pipeline._kstep_ridge: the limit's model moved along its ridge (i_max 6 % low, k_c raised so
-    that k_c*i_max^2 stays) is refitted on the k-step prediction, which gains more than
-    KSTEP_RIDGE_GAIN and brings i_max back within 2 %; the converged model itself gains less and is
-    kept as it is."""
+    that k_c*i_max^2 stays) is refitted on the k-step prediction, which brings i_max back within 2 %;
+    from the converged model the k-step fit moves i_max by under 1 %."""
     rec, prob, hold, first = limited
     whole = prob.with_base(first).with_mask(np.ones(rec.n, bool))
     parts = [BASELINE, CATALOGUE["current_saturation"]]
     kept = pipeline._kstep_ridge(whole, parts, first, lambda s: None)
-    assert kept == first
+    assert abs(kept["i_max"] / first["i_max"] - 1) < 0.01, (kept["i_max"], first["i_max"])
     ridge = {**first, "i_max": 0.94 * first["i_max"], "k_c": first["k_c"] / 0.94 ** 2}
     said = []
     mended = pipeline._kstep_ridge(whole, parts, ridge, said.append)

@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 
 import maglev_cosim
+from conftest import fmi_functions
 from maglev_cosim._resources import pid_fmu_path
 from maglev_cosim.loop.simulate import reference_signal, simulate
 from maglev_cosim.loop.loop_fmu import STOP, loop_settings
@@ -47,15 +48,6 @@ FMUS = {"fmi2": (lambda: maglev_cosim.fmu_path(), "binaries/win64/maglev.dll", "
         "fmi3": (lambda: maglev_cosim.fmu_path(fmi_version=3), "binaries/x86_64-windows/maglev.dll", "fmi3"),
         "pid": (pid_fmu_path, "binaries/win64/maglev_pid.dll", "fmi2"),
         "pid3": (lambda: pid_fmu_path(fmi_version=3), "binaries/x86_64-windows/maglev_pid.dll", "fmi3")}
-
-
-def fmi_functions(prefix: str) -> set[str]:
-    """The functions the FMI header declares (fmpy's copy of the standard's headers)."""
-    import fmpy
-    header = Path(fmpy.__file__).parent / "c-code" / f"{prefix}Functions.h"
-    names = set(re.findall(rf"^#define ({prefix}\w+)\s+{prefix}FullName\(", header.read_text(), re.M))
-    assert len(names) > 40, f"{header}: found only {len(names)} function names"
-    return names
 
 
 def pe_table(dll: Path) -> tuple[set[str], set[str]]:
