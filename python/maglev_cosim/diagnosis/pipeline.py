@@ -986,10 +986,11 @@ KSTEP_RIDGE_GAIN = 0.0
 def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict[str, float], say: Say) -> dict:
     """A free-run model with an effect the baseline can absorb, fitted again on the k-step
     prediction (the disturbances estimated for it), and taken when that fit lowers the k-step cost
-    by more than :data:`KSTEP_RIDGE_GAIN` and ends on no bound. Such an effect trades against the parameters that absorb it
-    (a limit's force ``k_c·i_max²``): where the loop sits on the limit most of the time, the free
-    run, which loses the ball for a few ms now and then, settles anywhere along that ridge, and the
-    k-step prediction, which follows the measured past, tells the points of the ridge apart. On the
+    by more than :data:`KSTEP_RIDGE_GAIN` and ends on no bound. Such an effect trades against the
+    parameters that absorb it (a limit's force ``k_c·i_max²``): where the loop sits on the limit
+    most of the time, the free run, which loses the ball for a few ms now and then, settles anywhere
+    along that ridge, and the k-step prediction, which follows the measured past, tells the points
+    of the ridge apart. On the
     project emulator's limit active 61 % of the samples (seed 3202), the free-run refit ended at
     i_max 0.707 A for 0.736 A, 1.64 times the true model's 20 ms error, with the verdict `explained`."""
     kstep = _weighted(replace(whole, noise=estimate_noise(whole.rec, values)), values)
