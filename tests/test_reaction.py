@@ -34,6 +34,36 @@ def test_an_arx_controller_is_identified_exactly():
         LinearController.fit({"u": u, "y": y}, np.arange(3, 20), orders)
 
 
+@pytest.mark.parametrize("orders", [{}, {"y": 0}, {"u": 2, "y": 3, "w": 1, "i": 0}])
+def test_the_reaction_is_the_measured_input_less_the_controller_on_the_model_s_trajectory(orders):
+    """``reaction`` (vectorised over starts and steps) against its definition written sample by
+    sample: r[s, j-1] = u[k+j] - ARX(k+j), the ARX reading the model's trajectory traj[k, c] for the
+    readings after the start k and the measured ones up to it (NaN in the trajectory stays NaN)."""
+    rng = np.random.default_rng(6)
+    n, h = 600, 7
+    sig = {"u": rng.normal(size=n), "y": rng.normal(size=n), "w": rng.normal(size=n), "i": rng.normal(size=n)}
+    ctl = LinearController.fit(sig, np.arange(20, n), orders)
+    traj = rng.normal(size=(n, h + 1))
+    traj[rng.random(traj.shape) < 0.02] = np.nan
+    starts = np.sort(rng.choice(np.arange(ctl.lags, n - h), 150, replace=False))
+    got = ctl.reaction(sig, traj, starts, h)
+    want = np.empty((len(starts), h))
+    for s, k in enumerate(starts):
+        for j in range(1, h + 1):
+            t = k + j
+            v = ctl.c
+            for name, cf in ctl.coef.items():
+                for m, c in enumerate(cf, start=LinearController.first(name)):
+                    if name == "y" and t - m > k:
+                        v += c * traj[k, t - m - k]
+                    else:
+                        v += c * sig[name][t - m]
+            want[s, j - 1] = sig["u"][t] - v
+    assert np.array_equal(np.isnan(got), np.isnan(want))
+    assert np.allclose(got, want, rtol=0, atol=1e-12, equal_nan=True)
+    assert ctl.reaction(sig, traj, starts[:0], h).shape == (0, h)
+
+
 def test_the_reaction_gain_inverts_an_exact_controller_and_ignores_a_useless_one():
     """r = B·e exactly (no residual): the gain gives e back; with a huge residual variance, nothing."""
     rng = np.random.default_rng(4)

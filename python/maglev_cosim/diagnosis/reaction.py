@@ -137,18 +137,23 @@ class LinearController:
         trajectory ``traj[k, i]`` (the reading ``i`` samples after ``k``) in place of the readings
         after ``k``."""
         y, u = signals["y"], signals["u"]
-        R = np.empty((len(starts), h))
+        if not len(starts):
+            return np.empty((0, h))
         # the part of the ARX value that does not read y, once at every sample a start's window reaches
-        # (each sample's value is the same sum, in the same order, as computed per j)
-        t_all = np.arange(int(starts.min()) + 1, int(starts.max()) + h + 1) if len(starts) else np.arange(0)
+        t_all = np.arange(int(starts.min()) + 1, int(starts.max()) + h + 1)
         not_y = self._value(signals, t_all, skip="y")
-        for j in range(1, h + 1):
-            t = starts + j
-            v = not_y[t - (t_all[0] if len(t_all) else 0)]
-            for m, b in enumerate(self.b):
-                v += b * (traj[starts, j - m] if j - m > 0 else y[t - m])
-            R[:, j - 1] = u[t] - v
-        return R
+        t = starts[:, None] + np.arange(1, h + 1)[None, :]            # t[s, j-1] = starts[s] + j
+        v = not_y[t - t_all[0]]
+        # the readings the controller reads, per start: the measured ones up to the start (column
+        # c <= 0: y[start + c]), the model's trajectory after it (c = 1..h: traj[start, c]); the term
+        # b[m]·y(t − m) of step j is then column j − m, a slice of this one table for each lag m
+        back = len(self.b) - 1       # the longest lag on y: step 1 reads y[start + 1 - back]
+        seen = np.empty((len(starts), back + h))
+        seen[:, :back] = y[starts[:, None] + np.arange(1 - back, 1)[None, :]]
+        seen[:, back:] = traj[starts, 1:h + 1]
+        for m, b in enumerate(self.b):
+            v += b * seen[:, back - m: back - m + h]
+        return u[t] - v
 
     def to_json(self) -> dict:
         return {"coefficients": {k: v.tolist() for k, v in self.coef.items()}, "c": self.c,
