@@ -1001,11 +1001,22 @@ def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict
     before = float(np.mean(residuals(kstep, values) ** 2))
     f = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
     gain = 1.0 - f.cost / before if before > 0 else 0.0
-    taken = gain > KSTEP_RIDGE_GAIN and not on_bounds({**values, **f.values})[0]
-    say(f"refitting by the k-step prediction (an effect the baseline can absorb): cost {-100 * gain:+.1f} % -> "
-        + ("taken" if taken else "kept the free-run fit (" + ("on a bound" if gain > KSTEP_RIDGE_GAIN else "no fall")
-                                     + ")"))
-    return {**values, **f.values} if taken else values
+    new = {**values, **f.values}
+    taken = gain > KSTEP_RIDGE_GAIN and not on_bounds(new)[0]
+    why = "on a bound" if gain > KSTEP_RIDGE_GAIN else "no fall"
+    own_gain = None
+    if taken:
+        # the verdict judges the model through the disturbances estimated for it: the fit is taken
+        # only where its values, through their own estimate, still predict better than the free
+        # run's through theirs
+        own = replace(kstep, noise=estimate_noise(whole.rec, new))
+        own_gain = 1.0 - float(np.mean(residuals(own, new) ** 2)) / before if before > 0 else 0.0
+        taken = own_gain > KSTEP_RIDGE_GAIN
+        why = "worse through its own disturbance estimate"
+    say(f"refitting by the k-step prediction (an effect the baseline can absorb): cost {-100 * gain:+.1f} %"
+        + (f", {-100 * own_gain:+.1f} % through its own disturbance estimate" if own_gain is not None else "")
+        + " -> " + ("taken" if taken else f"kept the free-run fit ({why})"))
+    return new if taken else values
 
 
 # ----------------------------------------------------------------------------- 4. summarise
