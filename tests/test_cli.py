@@ -110,6 +110,7 @@ def test_positions_take_mm_or_a_unit_and_linearize_writes_nothing_unasked(tmp_pa
     assert list(tmp_path.iterdir()) == []           # no ./linearize/ unless --plots is given
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: five fresh processes, 4-5 s
 def test_help_version_and_module_entry_point(capsys):
     r = subprocess.run([sys.executable, "-m", "maglev_cosim", "--version"], capture_output=True, text=True, timeout=60)
     from maglev_cosim import __version__

@@ -64,6 +64,7 @@ def test_step_agrees_with_the_reference(step_reference, method, bound_y, bound_u
     assert np.max(np.abs(s["u"] - ref["u"])) > 0                   # two integrators, not one
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_pid_timing_offset_is_a_delay_of_that_fraction(step_reference):
     """The output reaching the D/A a fraction of the sample after the reading: the disagreement with
     the reference grows in proportion (measured 0.94e-3, 2.9e-3, 5.0e-3 MU in y at 0.1, 0.3, 0.5 of
@@ -82,6 +83,7 @@ def test_pid_timing_offset_is_a_delay_of_that_fraction(step_reference):
     assert np.max(np.abs(s["u"] - delayed["u"])) < 3e-7
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_offset_and_transport_delay_add_up():
     """pid_offset·ts + T_d is the lag from reading to coil, however it is split."""
     w = E._reference("square", 1.5, 1e-3, 0, 1.0, QUIET)
@@ -113,6 +115,7 @@ def test_lags_and_delay_cost_phase(square):
     assert np.max(np.abs(lagged["i"] - base["i"])) > 0.05       # the current lags its command
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_viscous_damping_reduces_the_overshoot(square):
     w, base = square
     assert _overshoot(_run(w, k_FV=0.3), w) < 0.9 * _overshoot(base, w)
@@ -173,6 +176,7 @@ def test_the_ball_sticks_to_a_stop_until_the_force_pulls_it_off():
     assert 2e-3 < s["x"][-1] < 5e-3                   # caught again (the wound-up integrator still unwinding)
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a few seconds of ODE solving each
 def test_pickup_shows_at_its_frequency(square):
     w, base = square
     s = _run(w, A_d=0.01, f_d=37.0, phi_d=0.5)

@@ -15,6 +15,7 @@ import pytest
 README = Path(__file__).resolve().parents[1] / "README.md"
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: the README's diagnosis, 4-5 s
 def test_readme_python_api_runs(tmp_path):
     text = README.read_text()
     section = text[text.index("## Python API"):]

@@ -216,6 +216,7 @@ def report(tmp_path_factory) -> Path:
     return folder / "diag"
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a diagnosis and a headless browser, 5-8 s
 def test_report_html_renders_in_chromium_with_every_image_and_no_outside_request(report, tmp_path, capsys):
     """The report of :func:`report` in Chromium: its figures decoded at their PNG's size, no request
     but the page itself, and a full-page screenshot with text and plots, kept as an artefact."""
@@ -248,6 +249,7 @@ def test_report_html_renders_in_chromium_with_every_image_and_no_outside_request
         assert 0.3 < white < 0.98, white
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: the report fixture's diagnosis (5 s)
 def test_the_checker_catches_a_broken_image_and_outside_requests(report, tmp_path):
     """A copy of the report with its first image's source a file that is not there, its second an
     outside address, and an outside style sheet: each is reported."""
