@@ -946,7 +946,7 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
         # disturbances re-estimated for the model at hand): near instability the k-step fit leaves
         # the parameters a little off, and the loop's ringing magnifies such errors.
         say("polishing by the one-step prediction error (PEM), disturbances re-estimated")
-        pem = replace(whole, noise=estimate_noise(prob.rec, values), horizon_s=prob.rec.ts, stride=1)
+        pem = replace(whole, noise=estimate_noise(prob.rec, {**whole.base, **values}), horizon_s=prob.rec.ts, stride=1)
         pem = _weighted(pem, values)
         final = fit(pem, parts, [p.to_coords(values) for p in parts], max_nfev=30)
         values = {**values, **final.values}
@@ -961,7 +961,7 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
         # estimate then fell to a 0.25 Hz corner, 2.0 times off the floor it implies. Only a model with
         # an absorbed effect gets it now: _kstep_ridge.)
         say("refitting by the k-step prediction, the disturbances re-estimated for the polished model")
-        kstep = _weighted(replace(whole, noise=estimate_noise(prob.rec, values)), values)
+        kstep = _weighted(replace(whole, noise=estimate_noise(prob.rec, {**whole.base, **values})), values)
         final = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
         values = {**values, **final.values}
     elif any(CATALOGUE[e].absorbed_by for e in selected):
@@ -1000,7 +1000,10 @@ def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict
     of the ridge apart. On the
     project emulator's limit active 61 % of the samples (seed 3202), the free-run refit ended at
     i_max 0.707 A for 0.736 A, 1.64 times the true model's 20 ms error, with the verdict `explained`."""
-    kstep = _weighted(replace(whole, noise=estimate_noise(whole.rec, values)), values)
+    # the disturbances of the whole model: ``values`` holds the fitted parameters alone, and a
+    # parameter it lacks is the problem's base, not the plant's default (the baseline's T_a = 0
+    # against the C table's 0.3 ms amplifier lag)
+    kstep = _weighted(replace(whole, noise=estimate_noise(whole.rec, {**whole.base, **values})), values)
     before = float(np.mean(residuals(kstep, values) ** 2))
     f = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
     gain = 1.0 - f.cost / before if before > 0 else 0.0
@@ -1012,7 +1015,7 @@ def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict
         # the verdict judges the model through the disturbances estimated for it: the fit is taken
         # only where its values, through their own estimate, still predict better than the free
         # run's through theirs
-        own = replace(kstep, noise=estimate_noise(whole.rec, new))
+        own = replace(kstep, noise=estimate_noise(whole.rec, {**whole.base, **new}))
         own_gain = 1.0 - float(np.mean(residuals(own, new) ** 2)) / before if before > 0 else 0.0
         taken = own_gain > KSTEP_RIDGE_GAIN
         why = "worse through its own disturbance estimate"
