@@ -301,6 +301,26 @@ def test_the_k_step_fit_estimates_the_disturbances_of_the_whole_model(limited, m
     assert seen and all(t == 0.0 for t in seen), seen
 
 
+def test_a_free_run_fit_is_fitted_again_on_the_k_step_prediction_only_where_that_promises_much(limited):
+    """pipeline._kstep_screened: the model the free run fitted right promises a fall of the k-step cost
+    far below KSTEP_SCREEN_GAIN and stays as it is (no refit); the same model with its damping three
+    times too large and its D/A offset 0.05 V off promises more, is fitted again on the k-step
+    prediction and taken, which brings both back near the record's plant."""
+    rec, prob, hold, first = limited
+    whole = prob.with_base(first).with_mask(np.ones(rec.n, bool))
+    parts = [BASELINE, CATALOGUE["current_saturation"]]
+    said = []
+    assert pipeline._kstep_screened(whole, parts, first, said.append) == first
+    promised = float(said[-1].split("promises ")[1].split(" %")[0])
+    assert promised < 100 * pipeline.KSTEP_SCREEN_GAIN / 4 and "stays" in said[-1], said
+    biased = {**first, "k_FV": 3 * first["k_FV"], "u_0": first["u_0"] + 0.05}
+    said = []
+    mended = pipeline._kstep_screened(whole, parts, biased, said.append)
+    assert "settled on biased parameters" in said[0] and "taken" in said[-1], said
+    truth = baseline_params()     # the record's plant: no D/A offset, the paper's damping
+    assert abs(mended["u_0"] - truth["u_0"]) < 0.02 and abs(mended["k_FV"] / truth["k_FV"] - 1) < 0.5, mended
+
+
 def test_distance_from_off_in_standard_errors():
     """Each effect's distance from switching it off, in its standard errors: a bend from 0, a limit
     from the 1.5 A the D/A range implies, a lag from 0; None without a usable σ."""
