@@ -73,6 +73,32 @@ def test_noise_levels_are_recovered_from_an_emulator_record(tmp_path):
     assert 1.0 < nm.f_force < 100.0      # the corner (truth 8 Hz) is only weakly identified by 6 s
 
 
+def test_a_disturbance_estimate_is_kept_for_the_same_record_and_model(tmp_path, monkeypatch):
+    """estimate_noise keeps its last estimates: the same record and arguments give the same estimate
+    without a new search; another model, another record (even with the same samples), another
+    argument, or an ``info`` dict that asks for the figures search again."""
+    from maglev_cosim.diagnosis import replay as rp
+    rec = _clean_record(baseline_params(), n=1500)
+    calls = []
+    real = rp._estimate_noise
+
+    def counted(*a, **kw):
+        calls.append(1)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(rp, "_estimate_noise", counted)
+    monkeypatch.setattr(rp, "_ESTIMATES", rp.OrderedDict())
+    p = baseline_params()
+    first = estimate_noise(rec, p)
+    assert estimate_noise(rec, dict(p)) is first and len(calls) == 1
+    estimate_noise(rec, {**p, "k_FV": 0.031})
+    estimate_noise(Record(**{f: getattr(rec, f) for f in rec.__dataclass_fields__}), p)
+    estimate_noise(rec, p, coloured=False)
+    info: dict = {}
+    estimate_noise(rec, p, info=info)
+    assert len(calls) == 5 and info
+
+
 def test_predictable_share_sees_a_missing_delay(tmp_path):
     rec = read_record(synth_record(tmp_path / "r.csv", duration=6.0, seed=12, effects={"delay": {"T_d": 0.0025}}))
     base = baseline_params()

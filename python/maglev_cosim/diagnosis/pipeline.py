@@ -32,7 +32,8 @@ from .acceptance import ALPHA, CRITERION, MIN_GAIN, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .metrics import nrmse_fit
-from .problem import Fit, Parameterization, Problem, cost_on, fit, one_thread, residuals, stacked, thread_map
+from .problem import (Fit, Parameterization, Problem, cost_on, fit, on_fit_steps, one_thread, residuals, stacked,
+                      thread_map)
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
 from .result import Json
@@ -1043,7 +1044,8 @@ def _kstep_screened(whole: Problem, parts: Sequence[Parameterization], values: d
     step of the k-step cost's Jacobian (differences over the fitted parameters at their uncertainty
     scales, the disturbances estimated for the model) promises a fall of at least
     :data:`KSTEP_SCREEN_GAIN`; else the free run's values."""
-    kstep = _weighted(replace(whole, noise=estimate_noise(whole.rec, {**whole.base, **values})), values)
+    # the disturbances on the fits' substeps, as the verdict estimates them (the same estimate, kept)
+    kstep = _weighted(replace(whole, noise=estimate_noise(whole.rec, on_fit_steps({**whole.base, **values}))), values)
     scales = {k: v for p in parts for k, v in p.uncertainty_scales().items()}
     names = list(scales)
     r0 = residuals(kstep, values)

@@ -8,6 +8,8 @@ equilibrium input.
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -183,8 +185,37 @@ F_SENSOR_MIN = 30.0
 COLOURED_SCREEN = 3.0
 
 
+#: The last disturbance estimates (:func:`estimate_noise`), by record and arguments: the diagnosis asks
+#: for the same model's estimate at several stages (a fit's check, then the verdict), and each is a
+#: Nelder-Mead search of up to 80 filter passes. An entry holds its record, so that the record's
+#: ``id`` in the key is never reused while the entry lives.
+_ESTIMATES: OrderedDict = OrderedDict()
+_ESTIMATES_LOCK = threading.Lock()
+ESTIMATES_KEPT = 8
+
+
 def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool = True,
                    info: dict | None = None, sensor: NoiseModel | None = None) -> NoiseModel:
+    """:func:`_estimate_noise`, or the same estimate made before for the same record and arguments
+    (``info``, which receives the figures of a fresh estimate, bypasses it)."""
+    if info is not None:
+        return _estimate_noise(rec, params, coloured=coloured, info=info, sensor=sensor)
+    key = (id(rec), tuple(sorted((k, float(v)) for k, v in params.items())), coloured, sensor)
+    with _ESTIMATES_LOCK:
+        hit = _ESTIMATES.get(key)
+        if hit is not None and hit[0] is rec:
+            _ESTIMATES.move_to_end(key)
+            return hit[1]
+    out = _estimate_noise(rec, params, coloured=coloured, sensor=sensor)
+    with _ESTIMATES_LOCK:
+        _ESTIMATES[key] = (rec, out)
+        while len(_ESTIMATES) > ESTIMATES_KEPT:
+            _ESTIMATES.popitem(last=False)
+    return out
+
+
+def _estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool = True,
+                    info: dict | None = None, sensor: NoiseModel | None = None) -> NoiseModel:
     """The record's disturbance levels by maximum likelihood of the filter's innovations: the
     random force's RMS and corner and the sensor noise's RMS (Nelder-Mead over their logarithms,
     started from the reading's white noise and 0.3 % of the weight at 20 Hz).
