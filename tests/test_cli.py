@@ -17,6 +17,7 @@ def cli(*args: str) -> subprocess.CompletedProcess:
                           timeout=600)
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: fresh processes of the command line, 3-5 s
 def test_step_writes_csv_png_json(tmp_path, fmu_path):
     r = cli("step", "--amplitude", "0.05", "--duration", "1.0", "--out", str(tmp_path), "--fmu", str(fmu_path))
     assert r.returncode == 0, r.stderr
@@ -27,6 +28,7 @@ def test_step_writes_csv_png_json(tmp_path, fmu_path):
     assert (tmp_path / "step.csv").read_text().count("\n") > 1000
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: fresh processes of the command line, 3-5 s
 def test_linearize_json(tmp_path):
     js = tmp_path / "lin.json"
     r = cli("linearize", "--params", "eq18", "--current", "0.5612", "--json", str(js), "--plots", str(tmp_path))
@@ -48,6 +50,7 @@ def test_bad_record_gives_one_line_and_writes_nothing(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: fresh processes of the command line, 3-5 s
 def test_implausible_record_is_refused_before_anything_is_written(tmp_path):
     rec = tmp_path / "stuck.csv"                   # the ball lies on the floor while the reference asks 3 mm
     rec.write_text("t,w,u,y\n" + "".join(f"{k / 1000:.3f},0.4,1.0,{0.0025 + 1e-4 * (k % 2):.4f}\n" for k in range(3000)))
@@ -95,6 +98,7 @@ def test_errors_write_nothing(tmp_path):
     assert r.returncode == 2 and list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: fresh processes of the command line, 3-5 s
 def test_positions_take_mm_or_a_unit_and_linearize_writes_nothing_unasked(tmp_path, monkeypatch, capsys):
     from maglev_cosim.cli import main
 

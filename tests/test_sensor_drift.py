@@ -11,6 +11,7 @@ from maglev_cosim.records.record import read_record
 from maglev_cosim.records.synth import synth_record
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a diagnosis, 2-3 s
 def test_a_drifting_sensor_is_found_and_its_rate_recovered(tmp_path):
     path = synth_record(tmp_path / "drift.csv", effects={"sensor_drift": {"r_y": 0.01}}, duration=8.0, seed=5)
     d = pipeline.run(read_record(path), effects=["delay", "force_lag", "sensor_drift"])
@@ -19,6 +20,7 @@ def test_a_drifting_sensor_is_found_and_its_rate_recovered(tmp_path):
     assert d.to_json()["verdict"] == "explained"
 
 
+@pytest.mark.slow   # the quick tier's 2-minute budget: a diagnosis, 2-3 s
 def test_no_drift_is_not_found(tmp_path):
     path = synth_record(tmp_path / "none.csv", duration=8.0, seed=5)
     d = pipeline.run(read_record(path), effects=["sensor_drift"])
