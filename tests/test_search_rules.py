@@ -10,7 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from maglev_cosim.diagnosis import pipeline
+from maglev_cosim.diagnosis import pipeline, problem
 from maglev_cosim.diagnosis.acceptance import fit_blocks
 from maglev_cosim.diagnosis.effects import BASELINE, CATALOGUE
 from maglev_cosim.diagnosis.problem import cost_on, fit
@@ -267,13 +267,13 @@ def test_the_k_step_fit_is_kept_only_where_it_predicts_better_through_its_own_di
     rec, prob, hold, first = limited
     whole = prob.with_base(first).with_mask(np.ones(rec.n, bool))
     parts = [BASELINE, CATALOGUE["current_saturation"]]
-    real = pipeline.estimate_noise
+    real = problem.estimate_noise
 
     def slow_for_the_fit(r, values, **kw):
         nz = real(r, values, **kw)
         return nz if values["i_max"] == first["i_max"] else dataclasses.replace(nz, f_force=0.3, q_force=3 * nz.q_force)
 
-    monkeypatch.setattr(pipeline, "estimate_noise", slow_for_the_fit)
+    monkeypatch.setattr(problem, "estimate_noise", slow_for_the_fit)
     said = []
     kept = pipeline._kstep_ridge(whole, parts, first, said.append)
     assert "kept the free-run fit (worse through its own disturbance estimate)" in said[-1], said
@@ -290,13 +290,13 @@ def test_the_k_step_fit_estimates_the_disturbances_of_the_whole_model(limited, m
     assert "T_a" not in first and prob.base["T_a"] == 0.0
     whole = prob.with_base(first).with_mask(np.ones(rec.n, bool))
     seen = []
-    real = pipeline.estimate_noise
+    real = problem.estimate_noise
 
     def spy(r, values, **kw):
         seen.append(as_params(values).T_a)
         return real(r, values, **kw)
 
-    monkeypatch.setattr(pipeline, "estimate_noise", spy)
+    monkeypatch.setattr(problem, "estimate_noise", spy)
     pipeline._kstep_ridge(whole, [BASELINE, CATALOGUE["current_saturation"]], first, lambda s: None)
     assert seen and all(t == 0.0 for t in seen), seen
 

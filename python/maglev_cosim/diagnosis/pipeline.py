@@ -32,8 +32,7 @@ from .acceptance import ALPHA, CRITERION, MIN_GAIN, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .metrics import nrmse_fit
-from .problem import (Fit, Parameterization, Problem, cost_on, fit, on_fit_steps, one_thread, residuals, stacked,
-                      thread_map)
+from .problem import Fit, Parameterization, Problem, cost_on, fit, one_thread, residuals, stacked, thread_map
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
 from .result import Json
@@ -498,7 +497,7 @@ def innovation_terms(prob: Problem, values: Mapping[str, float],
     """Per sample, ``log s + e²/s`` of the filter's one-step innovations ``e`` (variance ``s``) of a
     model with its disturbances estimated by maximum likelihood (white sensor noise, or with
     ``coloured`` a coloured part where the record shows one), and ``e/√s``."""
-    full = {**prob.base, **values}
+    full = prob.model(values)
     out = predict(prob.rec, full, estimate_noise(prob.rec, full, coloured=coloured), horizon_s=0.0)
     e, v = out["innov"], out["innov_var"]
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -947,7 +946,7 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
         # disturbances re-estimated for the model at hand): near instability the k-step fit leaves
         # the parameters a little off, and the loop's ringing magnifies such errors.
         say("polishing by the one-step prediction error (PEM), disturbances re-estimated")
-        pem = replace(whole, noise=estimate_noise(prob.rec, {**whole.base, **values}), horizon_s=prob.rec.ts, stride=1)
+        pem = replace(whole, noise=whole.disturbances(values), horizon_s=prob.rec.ts, stride=1)
         pem = _weighted(pem, values)
         final = fit(pem, parts, [p.to_coords(values) for p in parts], max_nfev=30)
         values = {**values, **final.values}
@@ -964,7 +963,7 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
         # much (_kstep_screened); either is taken only where it predicts better through its own
         # disturbance estimate.)
         say("refitting by the k-step prediction, the disturbances re-estimated for the polished model")
-        kstep = _weighted(replace(whole, noise=estimate_noise(prob.rec, {**whole.base, **values})), values)
+        kstep = _weighted(replace(whole, noise=whole.disturbances(values)), values)
         final = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
         values = {**values, **final.values}
     elif any(CATALOGUE[e].absorbed_by for e in selected):
@@ -1005,10 +1004,7 @@ def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict
     of the ridge apart. On the
     project emulator's limit active 61 % of the samples (seed 3202), the free-run refit ended at
     i_max 0.707 A for 0.736 A, 1.64 times the true model's 20 ms error, with the verdict `explained`."""
-    # the disturbances of the whole model: ``values`` holds the fitted parameters alone, and a
-    # parameter it lacks is the problem's base, not the plant's default (the baseline's T_a = 0
-    # against the C table's 0.3 ms amplifier lag)
-    kstep = _weighted(replace(whole, noise=estimate_noise(whole.rec, {**whole.base, **values})), values)
+    kstep = _weighted(replace(whole, noise=whole.disturbances(values)), values)
     before = float(np.mean(residuals(kstep, values) ** 2))
     f = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
     gain = 1.0 - f.cost / before if before > 0 else 0.0
@@ -1020,7 +1016,7 @@ def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict
         # the verdict judges the model through the disturbances estimated for it: the fit is taken
         # only where its values, through their own estimate, still predict better than the free
         # run's through theirs
-        own = replace(kstep, noise=estimate_noise(whole.rec, {**whole.base, **new}))
+        own = replace(kstep, noise=whole.disturbances(new))
         own_gain = 1.0 - float(np.mean(residuals(own, new) ** 2)) / before if before > 0 else 0.0
         taken = own_gain > KSTEP_RIDGE_GAIN
         why = "worse through its own disturbance estimate"
@@ -1048,7 +1044,7 @@ def _kstep_screened(whole: Problem, parts: Sequence[Parameterization], values: d
     scales, the disturbances estimated for the model) promises a fall of at least
     :data:`KSTEP_SCREEN_GAIN`; else the free run's values."""
     # the disturbances on the fits' substeps, as the verdict estimates them (the same estimate, kept)
-    kstep = _weighted(replace(whole, noise=estimate_noise(whole.rec, on_fit_steps({**whole.base, **values}))), values)
+    kstep = _weighted(replace(whole, noise=whole.disturbances(values, fit_steps=True)), values)
     scales = {k: v for p in parts for k, v in p.uncertainty_scales().items()}
     names = list(scales)
     r0 = residuals(kstep, values)

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..records.record import Record
-from .replay import HORIZON_S, NoiseModel, horizon_samples, predict, replay
+from .replay import HORIZON_S, NoiseModel, estimate_noise, horizon_samples, predict, replay
 
 #: Shortest and longest RK4 substep [s] of the replays the fits run (:func:`fit_solver_step`; the
 #: plant shortens it further where friction, an eddy lag or a voltage drive needs it).
@@ -125,15 +125,27 @@ class Problem:
         """``free run`` or ``prediction``: which replay's errors the fits minimise."""
         return "free run" if self.noise is None else "prediction"
 
+    def model(self, values: Mapping[str, float]) -> dict[str, float]:
+        """The whole parameter set: ``values`` over the base. A parameter ``values`` lacks is the
+        base's, never the C table's default (the baseline's T_a = 0 against the table's 0.3 ms
+        amplifier lag)."""
+        return {**self.base, **values}
+
+    def disturbances(self, values: Mapping[str, float], *, fit_steps: bool = False) -> NoiseModel:
+        """The record's disturbances estimated for the whole model (:func:`~.replay.estimate_noise`);
+        ``fit_steps``: on the fits' RK4 substeps (:func:`on_fit_steps`), as the verdict estimates them."""
+        full = self.model(values)
+        return estimate_noise(self.rec, on_fit_steps(full) if fit_steps else full)
+
     def free_run(self, values: Mapping[str, float]) -> dict[str, np.ndarray]:
         """The record's closed loop replayed with ``values`` over the base (all signals)."""
-        return replay(self.rec, {**self.base, **values})
+        return replay(self.rec, self.model(values))
 
     def simulate(self, values: Mapping[str, float]) -> dict[str, np.ndarray]:
         """What the fits compare with the record: ``y`` and ``u`` of the free run, or of the
         ``HORIZON_S`` prediction (NaN where no prediction ends) in prediction mode; on RK4
         substeps of at most :func:`fit_solver_step` (the figures reported use the plant's own)."""
-        vals = on_fit_steps({**self.base, **values})
+        vals = on_fit_steps(self.model(values))
         if self.noise is None:
             return replay(self.rec, vals)
         pr = predict(self.rec, vals, self.noise, stride=self.stride, horizon_s=self.horizon_s)
