@@ -485,15 +485,23 @@ static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS]
     put_state(m, s);
     *d = s[4];
     *c = s[6];
-    double IKH[NS][NS];
+    /* the Joseph form P = (I - K H) P (I - K H)' + K r2 K' as its two rank-one products, in
+     * O(na^2): M = (I - K H) P (rows: P minus K times H P), then M (I - K H)' (columns likewise).
+     * The factors are multiplied out, not expanded: an expansion P - K PH' - PH K' + S K K' lost
+     * the covariance's definiteness on an Inteco record (x is known to 1e-5 of its prior there). */
+    double HP[NS], MH[NS];
+    for (int l = 0; l < NS; l++) HP[l] = h * P[j][l] + h2 * P[j2][l];
     for (int a = 0; a < na; a++)
         for (int b = 0; b < na; b++) {
             int i = idx[a], l = idx[b];
-            IKH[i][l] = (i == l) - (l == j ? K[i] * h : 0.0) - (l == j2 ? K[i] * h2 : 0.0);
+            P[i][l] -= K[i] * HP[l];
         }
-    sandwich(IKH, P, idx, na);
+    for (int i = 0; i < NS; i++) MH[i] = P[i][j] * h + P[i][j2] * h2;
     for (int a = 0; a < na; a++)
-        for (int b = 0; b < na; b++) P[idx[a]][idx[b]] += K[idx[a]] * r2 * K[idx[b]];
+        for (int b = 0; b < na; b++) {
+            int i = idx[a], l = idx[b];
+            P[i][l] += -MH[i] * K[l] + K[i] * r2 * K[l];
+        }
 }
 
 static int filter_check(const MaglevFilter *f, char *msg, size_t len) {
