@@ -72,6 +72,7 @@
 
 #include <math.h>
 #include <stdarg.h>
+#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -329,7 +330,22 @@ static void phi_functions(double z, double phi[5]) {
     }
 }
 
-#define ETD_SAME_H 1e-10 /* relative: two substep lengths this close share their ETDRK4 weights */
+/* The ETDRK4 weights are those of the substep length rounded to 32 significant bits (ETD_BITS): a
+ * delay's pieces are differences of sample times (k*ts + T_d - t), which differ in their last bits from
+ * sample to sample (3e-15 s at 15 s), so weights of the exact length missed the cache nearly every time
+ * and were 7 % of an Inteco record's filter pass. Rounded, the lengths of a piece agree, and the weights
+ * are a function of the length alone, never of what the cache held before (a restored FMU state, which
+ * has none, steps bit for bit as the live one). The rounding moves the weights by at most 2^-33 of h/T_F. */
+#define ETD_BITS 32
+
+static double etd_length(double h) {
+    uint64_t b;
+    memcpy(&b, &h, sizeof b);
+    const uint64_t drop = 52 - ETD_BITS;
+    b = (b + ((uint64_t)1 << (drop - 1))) & ~(((uint64_t)1 << drop) - 1); /* to nearest; a carry moves the exponent */
+    memcpy(&h, &b, sizeof h);
+    return h;
+}
 
 /* The force lag F' = (F_s - F)/T_F is stiff when T_F is short: plain RK4 needs substeps below
  * 2.8*T_F to stay stable, and below T_F/2 to be accurate (a lag of 50 us cost 6 lag-free replays). Cox and Matthews' ETDRK4 takes
@@ -339,13 +355,9 @@ static void phi_functions(double z, double phi[5]) {
  * h*(4phi_3 - phi_2), which tend to RK4's h/6, h/3, h/6 as T_F grows. */
 static const MaglevEtd *etd_weights(MaglevPlant *m, double h) {
     const double T = P(m, T_F);
-    /* A substep of the same length up to the rounding of the sample times shares the weights: a
-     * delay's pieces are differences of those times (k*ts + T_d - t), which differ in their last
-     * bits from sample to sample (3e-15 s at 15 s), so an exact match missed nearly every time,
-     * and these weights were 7 % of an Inteco record's filter pass. Weights for a length that far
-     * off differ by about 3e-15 s / T_F, the size of that rounding's own effect. */
+    h = etd_length(h); /* (h > 0 and finite here: a substep) */
     for (int k = 0; k < 2; k++)
-        if (fabs(m->etd[k].h - h) <= ETD_SAME_H * h && m->etd[k].T == T) return &m->etd[k];
+        if (m->etd[k].h == h && m->etd[k].T == T) return &m->etd[k];
     MaglevEtd *c = &m->etd[m->etd_next];
     m->etd_next ^= 1;
     double p[5], q[5];
