@@ -242,7 +242,7 @@ typedef struct {
 /* atan(a) at an RK4 stage. The stages of a substep see nearly the same current, so from the first
  * stage's a0: atan(a) = atan(a0) + atan(w), w = (a - a0)/(1 + a*a0) (exact where a*a0 > -1, which
  * |a - a0| <= 1/16 ensures), and atan(w) by its series to w^13 (|w| < 0.063: the next term is below
- * 1e-18 of w). The library's atan, which switches the rounding mode on each call, was a fifth of the
+ * 1e-18 of w). The library's atan, which sets and restores the rounding mode on each call, was a fifth of the
  * cycles of an Inteco record's diagnosis (four calls a substep); this takes one. The result depends on
  * the substep's own states alone, so a restored FMU state steps as the live one. */
 static double coil_atan(CoilAnchor *an, double a) {

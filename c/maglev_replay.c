@@ -299,11 +299,11 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
                 force lag's slow part, eddy_lag) */
 #define JAC_EVERY 10
 
-/* P = M P M' over the active states idx[0..na) (ascending) alone: the other rows and columns of P are
- * zero (the filter keeps them so), so the terms skipped are exact zeros, and each entry's products are
- * summed in the order of the full product: the active block is the same as the full product's, to the
- * bit. The inactive rows and columns are left as they are, and M's are not read (a measurement
- * update sets only the active ones). Every loop runs over the active states alone: with the columns
+/* P = M P M' (the time update, M the step's Jacobian) over the active states idx[0..na) (ascending)
+ * alone: the other rows and columns of P are zero (the filter keeps them so), so the terms skipped are
+ * exact zeros, and each entry's products are summed in the order of the full product: the active block
+ * is the same as the full product's, to the bit. The inactive rows and columns are left as they are,
+ * and M's are not read. Every loop runs over the active states alone: with the columns
  * of all NS states, the filter took 5.6 ms on a 12 s record, against 5.3 ms (the innovations, the
  * 20 ms predictions and u's, the same to the bit on three models with lags and coloured noise). */
 static void sandwich(double M[NS][NS], double P[NS][NS], const int *idx, int na) { /* M is only read */
@@ -487,8 +487,9 @@ static void scalar_update(MaglevPlant *m, double *d, double *c, double P[NS][NS]
     *c = s[6];
     /* the Joseph form P = (I - K H) P (I - K H)' + K r2 K' as its two rank-one products, in
      * O(na^2): M = (I - K H) P (rows: P minus K times H P), then M (I - K H)' (columns likewise).
-     * The factors are multiplied out, not expanded: an expansion P - K PH' - PH K' + S K K' lost
-     * the covariance's definiteness on an Inteco record (x is known to 1e-5 of its prior there). */
+     * The factors are multiplied out, not expanded: the algebraically equal P - K PH' - PH K' + S K K'
+     * moved an Inteco record's predictions by 70 %; this moves them by rounding (2e-9 of their
+     * largest value) against the dense sandwich of I - K H it replaces (a filter pass 31 -> 18-26 ms). */
     double HP[NS], MH[NS];
     for (int l = 0; l < NS; l++) HP[l] = h * P[j][l] + h2 * P[j2][l];
     for (int a = 0; a < na; a++)
