@@ -29,8 +29,10 @@ LAYERS = (
 )
 
 #: Third-party (or platform-specific standard) modules a function may import: optional heavy
-#: dependencies that ``import maglev_cosim`` should not load, and ``resource`` (not on Windows).
-FUNCTION_LEVEL = {"matplotlib", "markdown", "lxml", "fmu_manipulation_toolbox", "resource"}
+#: dependencies that ``import maglev_cosim`` should not load (python-control loads matplotlib.pyplot:
+#: half a second of every command's start, which ``diagnose`` does not use), and ``resource`` (not on
+#: Windows).
+FUNCTION_LEVEL = {"matplotlib", "control", "markdown", "lxml", "fmu_manipulation_toolbox", "resource"}
 
 
 _PARSED: dict[Path, ast.Module] = {}

@@ -12,7 +12,6 @@ import sys
 import time
 from pathlib import Path
 
-import control
 import numpy as np
 
 # Imported inside functions, on purpose: matplotlib (heavy, only `step` plots).
@@ -111,6 +110,7 @@ def _check_position(x: float, p, option: str = "--position") -> None:
 # ----------------------------------------------------------------------------- step
 
 def cmd_step(a: argparse.Namespace) -> dict:
+    import control   # (with the matplotlib.pyplot it loads: half a second that `diagnose` need not pay)
     import matplotlib
 
     matplotlib.use("Agg")

@@ -17,9 +17,9 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ..loop import fast_loop
+from ..loop.fast_loop import settled_start_vector
 from ..loop.controllers import Controller
 from ..loop.pid import PID
-from ..loop.simulate import settled_start_vector
 from ..plant import fast, formulas
 from ..plant.params import as_params, get_params
 from ..records.record import Record

@@ -30,9 +30,8 @@ import sys
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any, Union
+from typing import TYPE_CHECKING, Any, Union
 
-import control
 import numpy as np
 
 from ..plant import fast
@@ -40,6 +39,9 @@ from ..plant.formulas import point
 from ..plant.params import as_params
 from ..rigs import RigError, _Doc, load_rig
 from .pid import ANTI_WINDUP, DiscretePID, PID
+
+if TYPE_CHECKING:   # python-control (and the matplotlib.pyplot it loads: half a second) is imported where it is
+    import control  # used: a diagnosis needs none of it
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -260,6 +262,8 @@ def discrete_plant(params, x_op: float, ts: float, *, i_op: float | None = None)
     outputs ``y`` [MU] (the reading's slope) and ``i`` [A]. Returns a python-control
     ``StateSpace`` with ``dt = ts`` and named signals; ``.op`` holds the operating point
     (``x``, ``i``, ``u``, ``y``)."""
+    import control
+
     p = as_params(params)
     pt = point(p, x_op) if i_op is None else point(p, x_op, i_op)
     s0 = np.array([x_op, 0.0, pt.i])
@@ -314,6 +318,8 @@ def design_state_feedback(params, x_op: float, ts: float, *, q: tuple[float, flo
     measure_current : bool
         Whether the observer uses the measured current.
     """
+    import control
+
     p = as_params(params)
     plant = discrete_plant(p, x_op, ts)
     A, B, C = plant.A, plant.B, plant.C

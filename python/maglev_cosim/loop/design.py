@@ -9,24 +9,32 @@ closed-loop Bode magnitude (Fig. 18).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 
-# Imported inside functions, on purpose: matplotlib (heavy, only the plots).
+# Imported inside functions, on purpose: matplotlib (heavy, only the plots) and python-control (which
+# loads matplotlib.pyplot: half a second that a diagnosis, which needs neither, need not pay).
 from ..plant.linear import linearize
 from ..plant.params import PlantParams, set_label
 from .pid import PID, pid_continuous_tf, pid_tf
 
+if TYPE_CHECKING:
+    import control
+
 
 def discrete_plant(p: PlantParams, x_op: float, ts: float, i: float | None = None) -> control.TransferFunction:
     """Eq. 19 at ``x_op`` [m], ZOH-discretised at ``ts`` [s]."""
+    import control
+
     return control.ss2tf(control.sample_system(linearize(p, x_op, i), ts, method="zoh"))
 
 
 def discrete_closed_loop(p: PlantParams, x_op: float = 0.0032, cfg: PID | None = None,
                          i: float | None = None) -> control.TransferFunction:
     """Reference-to-position closed loop ``C(z)G(z)/(1 + C(z)G(z))`` [MU/MU]."""
+    import control
+
     cfg = cfg or PID()
     return control.feedback(pid_tf(cfg) * discrete_plant(p, x_op, cfg.ts, i), 1)
 
@@ -51,6 +59,8 @@ def closed_loop_report(p: PlantParams, x_op: float = 0.0032, cfg: PID | None = N
                        i: float | None = None) -> dict:
     """Closed-loop poles, stability, step_info and bandwidth of the linear discrete loop, with
     the paper's statements beside them (stable loop, bandwidth about 50 Hz, PID zeros −200, −1.5)."""
+    import control
+
     cfg = cfg or PID()
     T = discrete_closed_loop(p, x_op, cfg, i)
     poles = np.asarray(T.poles())
@@ -72,6 +82,8 @@ def closed_loop_report(p: PlantParams, x_op: float = 0.0032, cfg: PID | None = N
 def root_locus_branches(p: PlantParams, x_op: float, cfg: PID, gains: np.ndarray) -> np.ndarray:
     """Closed-loop poles of ``1 + K·C0(s)·H(s)`` for each ``K``, where ``C0 = C/K_p`` is the PID with
     its gain normalised (zeros fixed at the design's, Eq. 21)."""
+    import control
+
     L0 = pid_continuous_tf(1.0, cfg.ki / cfg.kp, cfg.kd / cfg.kp) * control.ss2tf(linearize(p, x_op))
     num = np.asarray(L0.num[0][0], float)
     den = np.asarray(L0.den[0][0], float)
@@ -86,6 +98,8 @@ def plot_root_locus(p: PlantParams, x_op: float, cfg: PID, path: str | Path, *, 
     whole locus, and beside it a zoom on the cluster at the origin (the integrator's pole, the PID's
     slow zero and the slow closed-loop pole, a few 1/s apart where the whole plot spans hundreds).
     The title names the parameter set (``params_label``, default :func:`~.params.set_label`)."""
+    import control
+
     import matplotlib
 
     matplotlib.use("Agg")

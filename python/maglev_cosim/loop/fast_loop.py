@@ -151,3 +151,14 @@ def control(controller: Controller, w: np.ndarray, y: np.ndarray, current: np.nd
                                    256) != 0:
         raise ValueError(m.ffi.string(msg).decode())
     return u
+
+
+def settled_start_vector(params: PlantParams | Mapping[str, float] | np.ndarray, x_op: float) -> tuple[np.ndarray, float]:
+    """:func:`maglev_cosim.loop.simulate.settled_start` on a parameter vector
+    (:func:`maglev_cosim.plant.fast.param_vector`), for the replays of a fit: the start state set in
+    a copy of the vector, and the hold input [MU]."""
+    pv, k = fast.param_vector(params), fast.param_index()
+    i = min(formulas.point(pv, x_op).i, pv[k["i_max"]])
+    u_hold = formulas.point(pv, x_op, i).u
+    pv[k["x_start"]], pv[k["v_start"]], pv[k["i_start"]] = x_op, 0.0, i
+    return pv, u_hold

@@ -13,8 +13,10 @@ i.e. ``e[k] = w[k] − y[k]``, ``I[k] = I[k−1] + K_i·T_s·e[k]``,
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
-import control
+if TYPE_CHECKING:   # python-control (and the matplotlib.pyplot it loads: half a second) is imported where it is
+    import control  # used: a diagnosis needs none of it
 
 ANTI_WINDUP = ("none", "conditional", "clamping", "band")
 
@@ -136,6 +138,8 @@ class DiscretePID:
 def pid_tf(cfg: PID | None = None) -> control.TransferFunction:
     """Eq. 25 as a discrete transfer function (dt = ts), from e to u (no limits):
     ``(K_p·z(z−1) + K_i·T_s·z² + K_d/T_s·(z−1)²) / (z(z−1))``."""
+    import control
+
     c = cfg or PID()
     num = [c.kp + c.ki * c.ts + c.kd / c.ts, -c.kp - 2 * c.kd / c.ts, c.kd / c.ts]
     return control.tf(num, [1.0, -1.0, 0.0], c.ts)
@@ -143,4 +147,6 @@ def pid_tf(cfg: PID | None = None) -> control.TransferFunction:
 
 def pid_continuous_tf(kp: float = 2.0, ki: float = 2.97, kd: float = 0.01) -> control.TransferFunction:
     """The continuous PID of Eq. 20–22, ``(K_d s² + K_p s + K_i)/s``."""
+    import control
+
     return control.tf([kd, kp, ki], [1.0, 0.0])

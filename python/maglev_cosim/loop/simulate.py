@@ -19,17 +19,18 @@ reference ``w`` as input, ``y`` and ``u`` as outputs and ``x``, ``v``, ``i`` as 
 from __future__ import annotations
 
 import csv
+import threading
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 
-from ..plant import formulas
-from ..plant.fast import param_index, param_vector
+from ..plant.fast import param_index
 from ..plant.params import PlantParams, as_params
 from ..plant.reference import ReferencePlant
 from . import fast_loop
+from .fast_loop import settled_start_vector
 from .controllers import Controller, c_settings, start as start_controller
 from .fmu import FmuPlant
 from .pid import PID
@@ -40,8 +41,9 @@ REFERENCES = ("step", "square", "sine")
 X_OP = 0.0032
 
 
-class LoopResponse(control.TimeResponseData):
-    """A closed-loop time response sampled at ``t_k = k·ts``.
+class _Response:
+    """A closed-loop time response sampled at ``t_k = k·ts`` (``LoopResponse``: these methods on
+    python-control's ``TimeResponseData``, the class made when first used, :func:`__getattr__`).
 
     Signals by name, ``r["w"]`` and so on: input ``w`` reference [MU]; outputs ``y`` A/D reading
     [MU] and ``u`` controller output held over the next sample [MU]; states ``x`` position [m],
@@ -101,6 +103,33 @@ class LoopResponse(control.TimeResponseData):
         return path
 
 
+
+if TYPE_CHECKING:
+    import control
+
+    class LoopResponse(_Response, control.TimeResponseData):
+        """What :func:`__getattr__` makes (for the type checkers)."""
+
+
+_made: dict[str, type] = {}
+_making = threading.Lock()
+
+
+def __getattr__(name: str) -> type:
+    """``LoopResponse``: python-control's ``TimeResponseData`` with :class:`_Response`'s methods, made
+    on first use. Its base is why: importing python-control loads matplotlib.pyplot too, half a second
+    that a diagnosis, which never simulates through here, need not pay at its start."""
+    if name != "LoopResponse":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    with _making:
+        if name not in _made:
+            import control
+
+            _made[name] = type("LoopResponse", (_Response, control.TimeResponseData),
+                               {"__module__": __name__, "__qualname__": "LoopResponse", "__doc__": _Response.__doc__})
+        return _made[name]
+
+
 def reference_signal(kind: str, duration: float, ts: float = 1e-3, *, base: float, amplitude: float,
                      t_step: float = 0.1, period: float = 3.0) -> np.ndarray:
     """A position reference ``w`` [MU] lasting ``duration`` [s], sampled at ``ts`` [s].
@@ -128,16 +157,6 @@ def settled_start(p: PlantParams, x_op: float) -> tuple[PlantParams, float]:
     the D/A input [MU] that holds it there."""
     start, u_hold = settled_start_vector(p, x_op)
     return p.replace(x_start=x_op, v_start=0.0, i_start=start[param_index()["i_start"]]), u_hold
-
-
-def settled_start_vector(params: PlantParams | Mapping[str, float] | np.ndarray, x_op: float) -> tuple[np.ndarray, float]:
-    """:func:`settled_start` on a parameter vector (:func:`maglev_cosim.plant.fast.param_vector`), for
-    the replays of a fit: the start state set in a copy of the vector, and the hold input [MU]."""
-    pv, k = param_vector(params), param_index()
-    i = min(formulas.point(pv, x_op).i, pv[k["i_max"]])
-    u_hold = formulas.point(pv, x_op, i).u
-    pv[k["x_start"]], pv[k["v_start"]], pv[k["i_start"]] = x_op, 0.0, i
-    return pv, u_hold
 
 
 def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarray, *,
@@ -191,7 +210,7 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
     run = {"fast": _run_fast, "fmu": _run_fmu, "reference": _run_reference}[backend]
     sig = run(start, controller, w, u_hold, fmu)
     t = np.arange(len(w)) * controller.ts
-    return LoopResponse(t, w, sig["u"], sig["y"], sig["x"], sig["v"], sig["i"], params=p,
+    return __getattr__("LoopResponse")(t, w, sig["u"], sig["y"], sig["x"], sig["v"], sig["i"], params=p,
                         controller=controller, backend=backend, x_op=x_op)
 
 

@@ -8,12 +8,15 @@ the force ``F`` is a fourth state, and with the second force lag (``beta_F > 0``
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 
 from . import formulas
 from .params import PlantParams
+
+if TYPE_CHECKING:   # python-control (and the matplotlib.pyplot it loads: half a second) is imported where it is
+    import control  # used: a diagnosis needs none of it
 
 #: Eq. 18 as printed (states x, v, i; input u_MU; output y_MU).
 EQ18_A = np.array([[0.0, 1.0, 0.0], [3834.4, -2.4, 35.2], [0.0, 0.0, -333.3]])
@@ -58,6 +61,8 @@ def linearize(p: PlantParams, x: float | None = None, i: float | None = None) ->
         when their lags are on, ``i`` [A] (``T_a > 0``), ``F`` [N] (``T_F > 0``), ``F2`` [N] (the second
         force lag's slow part, ``beta_F > 0``) and ``x_s`` [m], the position the sensor sees (``T_y > 0``).
     """
+    import control
+
     x = PAPER_OPERATING_POINT[0] if x is None else x
     pt = formulas.point(p, x, i)
     dfdx, dfdi, c_y = pt.dF_dx, pt.dF_di, pt.dy_dx     # Eq. 16, 17 and the sensor's slope
@@ -122,6 +127,8 @@ def linearize(p: PlantParams, x: float | None = None, i: float | None = None) ->
 def transfer_function(p: PlantParams, x: float | None = None, i: float | None = None) -> control.TransferFunction:
     """H(s) = Y(s)/U(s) in MU/MU (Eq. 19); rounding residue of the conversion (coefficients below
     1e-12 of the largest) is removed, so the numerator is the constant of Eq. 19."""
+    import control
+
     tf = control.ss2tf(linearize(p, x, i))
     num = np.asarray(tf.num[0][0], float)
     num = np.where(np.abs(num) < 1e-12 * np.max(np.abs(num)), 0.0, num)
