@@ -24,7 +24,6 @@ import importlib
 import json
 import os
 import threading
-from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
@@ -51,6 +50,7 @@ from ..rigs import Rig
 from . import blackbox as bb
 from . import reaction
 from .effects import CATALOGUE, force_law
+from .memo import Memo
 from .jacobian import difference_jacobian, gauss_newton_gain
 from .metrics import nrmse_fit
 from .neldermead import nelder_mead
@@ -180,8 +180,7 @@ def noise_defaults(rig: Rig, params: PlantParams) -> dict[str, float]:
 #: one parameter set, the start of a fit and its first step, a candidate's fitted value and its
 #: held-out cost). About 1 MB each.
 REPLAY_CACHE_SIZE = 64
-_replays: OrderedDict = OrderedDict()
-_replays_lock = threading.Lock()
+_replays = Memo(REPLAY_CACHE_SIZE)
 
 
 def _fingerprint(r: RigRecord) -> bytes:
@@ -212,21 +211,14 @@ def _noise_key(nz: dict) -> tuple:
 def _cached(key: tuple, compute):
     """``compute()``, or the result of the same ``key`` computed before (:data:`REPLAY_CACHE_SIZE`);
     its arrays are read-only (shared between callers)."""
-    with _replays_lock:
-        hit = _replays.get(key)
-        if hit is not None:
-            _replays.move_to_end(key)
-            return hit
-    out = compute()
+    return _replays.get(key, compute, seal=_read_only)
+
+
+def _read_only(out) -> None:
     for o in (out if isinstance(out, list) else [out]):
         for v in o.values():
             if isinstance(v, np.ndarray):
                 v.flags.writeable = False
-    with _replays_lock:
-        _replays[key] = out
-        while len(_replays) > REPLAY_CACHE_SIZE:
-            _replays.popitem(last=False)
-    return out
 
 
 def predict(rig: Rig, r: RigRecord, params: PlantParams, horizon_s: float, *, use_current: bool = True,

@@ -8,8 +8,6 @@ equilibrium input.
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -24,6 +22,7 @@ from ..plant import fast, formulas
 from ..plant.params import as_params, get_params
 from ..records.record import Record
 from .acceptance import accept, fit_blocks
+from .memo import Memo
 
 
 def baseline_params() -> dict[str, float]:
@@ -189,9 +188,8 @@ COLOURED_SCREEN = 3.0
 #: for the same model's estimate at several stages (a fit's check, then the verdict), and each is a
 #: Nelder-Mead search of up to 80 filter passes. An entry holds its record, so that the record's
 #: ``id`` in the key is never reused while the entry lives.
-_ESTIMATES: OrderedDict = OrderedDict()
-_ESTIMATES_LOCK = threading.Lock()
 ESTIMATES_KEPT = 8
+_ESTIMATES = Memo(ESTIMATES_KEPT)
 
 
 def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool = True,
@@ -201,17 +199,8 @@ def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool =
     if info is not None:
         return _estimate_noise(rec, params, coloured=coloured, info=info, sensor=sensor)
     key = (id(rec), tuple(sorted((k, float(v)) for k, v in params.items())), coloured, sensor)
-    with _ESTIMATES_LOCK:
-        hit = _ESTIMATES.get(key)
-        if hit is not None and hit[0] is rec:
-            _ESTIMATES.move_to_end(key)
-            return hit[1]
-    out = _estimate_noise(rec, params, coloured=coloured, sensor=sensor)
-    with _ESTIMATES_LOCK:
-        _ESTIMATES[key] = (rec, out)
-        while len(_ESTIMATES) > ESTIMATES_KEPT:
-            _ESTIMATES.popitem(last=False)
-    return out
+    return _ESTIMATES.get(key, lambda: (rec, _estimate_noise(rec, params, coloured=coloured, sensor=sensor)),
+                          valid=lambda hit: hit[0] is rec)[1]
 
 
 def _estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool = True,
