@@ -114,3 +114,16 @@ def test_gauss_newton_gain_is_the_linear_fits_fall_and_zero_at_its_optimum():
     sub = np.linalg.lstsq(A[:, 1:], -f, rcond=None)[0]
     assert np.isclose(held, 0.5 * f @ f - 0.5 * np.sum((f + A[:, 1:] @ sub) ** 2), rtol=1e-10)
     assert 0 < held < gain
+
+
+def test_parameter_columns_are_the_differences_per_unit_of_each_scale():
+    from maglev_cosim.diagnosis.jacobian import parameter_columns
+
+    def fun(v):
+        return np.array([v["a"] ** 2, 3.0 * v["b"], v["a"] * v["b"]])
+
+    values, scales = {"a": 2.0, "b": -1.0}, {"a": 0.5, "b": 4.0}
+    got = parameter_columns(fun, values, scales, fun(values))
+    exact = np.array([[2 * 2.0, 0.0], [0.0, 3.0], [-1.0, 2.0]]) * np.array([0.5, 4.0])
+    assert got.shape == (3, 2)
+    assert np.allclose(got, exact, rtol=1e-3, atol=1e-9)

@@ -10,11 +10,12 @@ evaluated) replaces them at no replay. The update is the least change, in the co
 ``scale`` (``least_squares``'s ``x_scale``), that maps the step onto the change of the residuals
 (Dennis and Schnabel, *Numerical Methods for Unconstrained Optimization*, 1983, section 8.1).
 ``jac.differences(z)`` is the difference Jacobian at ``z`` whatever ``refresh`` says: standard errors
-need it at the solution."""
+need it at the solution. :func:`parameter_columns` differentiates a function of named parameter values
+at their typical sizes (the CE152 standard errors and the k-step screen)."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -133,3 +134,17 @@ def gauss_newton_gain(J: np.ndarray, f: np.ndarray, z: np.ndarray, lo: np.ndarra
             break
         free &= ~out
     return float(0.5 * (f @ f) - 0.5 * np.sum((f + J @ step) ** 2))
+
+
+def parameter_columns(fun: Callable[[dict[str, float]], np.ndarray], values: Mapping[str, float],
+                      scales: Mapping[str, float], f0: np.ndarray, *, rel: float = 1e-4,
+                      map_fn: Callable[[Callable, Iterable], Sequence] = lambda f, xs: [f(x) for x in xs]) -> np.ndarray:
+    """The forward-difference Jacobian of ``fun`` (residuals of named parameter ``values``; ``f0`` at
+    ``values``) over the parameters of ``scales``: a step of ``rel`` times each one's scale (its typical
+    size), each column per unit of that scale, the columns side by side with ``map_fn`` (one call of
+    ``fun`` each)."""
+    def column(name: str) -> np.ndarray:
+        h = rel * scales[name]
+        return (fun({**values, name: values[name] + h}) - f0) / (h / scales[name])
+
+    return np.column_stack(list(map_fn(column, list(scales))))

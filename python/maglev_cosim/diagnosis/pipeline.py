@@ -31,6 +31,7 @@ from ..records.record import Record
 from .acceptance import ALPHA, CRITERION, MIN_GAIN, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
+from .jacobian import parameter_columns
 from .metrics import nrmse_fit
 from .problem import Fit, Parameterization, Problem, cost_on, fit, one_thread, residuals, stacked, thread_map
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
@@ -871,18 +872,10 @@ def uncertainty(prob: Problem | Sequence[Problem], values: Mapping[str, float],
     sc = np.array([steps[n] for n in names])
     # each record's y and u errors are autocorrelated differently: the inflation is the largest
     # N/N_eff among those pieces (one record: its y half and its u half)
-    parts = [residuals(p, {**values, **dict(zip(names, x))}) for p in ([prob] if isinstance(prob, Problem) else prob)]
+    at = {**values, **dict(zip(names, x))}
+    parts = [residuals(p, at) for p in ([prob] if isinstance(prob, Problem) else prob)]
     r0 = np.concatenate(parts)
-    jac = np.empty((len(r0), len(names)))
-
-    def column(k: int) -> np.ndarray:
-        h = 1e-4 * sc[k]
-        xp = x.copy()
-        xp[k] += h
-        return (stacked(prob, {**values, **dict(zip(names, xp))}) - r0) / (h / sc[k])
-
-    for k, col in enumerate(thread_map(column, range(len(names)))):    # one replay each, side by side
-        jac[:, k] = col
+    jac = parameter_columns(lambda v: stacked(prob, v), at, steps, r0, map_fn=thread_map)
     pieces = [half for r in parts for half in (r[:len(r) // 2], r[len(r) // 2:])]
     inflation = max(len(q) / max(effective_samples(q), 1.0) for q in pieces)
     s2 = float(np.sum(r0**2)) / max(len(r0) - len(names), 1)
@@ -1046,14 +1039,8 @@ def _kstep_screened(whole: Problem, parts: Sequence[Parameterization], values: d
     # the disturbances on the fits' substeps, as the verdict estimates them (the same estimate, kept)
     kstep = _weighted(replace(whole, noise=whole.disturbances(values, fit_steps=True)), values)
     scales = {k: v for p in parts for k, v in p.uncertainty_scales().items()}
-    names = list(scales)
     r0 = residuals(kstep, values)
-
-    def column(n: str) -> np.ndarray:
-        h = 1e-4 * scales[n]
-        return (residuals(kstep, {**values, n: values[n] + h}) - r0) / h
-
-    jac = np.column_stack(thread_map(column, names))     # one replay each, side by side
+    jac = parameter_columns(lambda v: residuals(kstep, v), values, scales, r0, map_fn=thread_map)
     step = np.linalg.lstsq(jac, -r0, rcond=None)[0]
     promised = 1.0 - float(np.sum((r0 + jac @ step) ** 2)) / max(float(np.sum(r0 ** 2)), 1e-300)
     if promised < KSTEP_SCREEN_GAIN:
