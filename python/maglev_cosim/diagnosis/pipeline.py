@@ -997,7 +997,9 @@ def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict
     of the ridge apart. On the
     project emulator's limit active 61 % of the samples (seed 3202), the free-run refit ended at
     i_max 0.707 A for 0.736 A, 1.64 times the true model's 20 ms error, with the verdict `explained`."""
-    kstep = _weighted(replace(whole, noise=whole.disturbances(values)), values)
+    # the disturbances on the fits' substeps, as the verdict estimates them: the estimate of the model
+    # this returns is then the verdict's own (kept, not made again)
+    kstep = _weighted(replace(whole, noise=whole.disturbances(values, fit_steps=True)), values)
     before = float(np.mean(residuals(kstep, values) ** 2))
     f = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
     gain = 1.0 - f.cost / before if before > 0 else 0.0
@@ -1009,7 +1011,7 @@ def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict
         # the verdict judges the model through the disturbances estimated for it: the fit is taken
         # only where its values, through their own estimate, still predict better than the free
         # run's through theirs
-        own = replace(kstep, noise=whole.disturbances(new))
+        own = replace(kstep, noise=whole.disturbances(new, fit_steps=True))
         own_gain = 1.0 - float(np.mean(residuals(own, new) ** 2)) / before if before > 0 else 0.0
         taken = own_gain > KSTEP_RIDGE_GAIN
         why = "worse through its own disturbance estimate"
