@@ -55,7 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", help="the shared real records (default: $MAGLEV_REAL_DATA or ../shared/data/real)")
     ap.add_argument("--no-write", action="store_true", help="print the section, leave docs/benchmarks.md alone")
-    ap.add_argument("--repeat", type=int, default=2, help="runs of each diagnose, in passes over all records (default 2)")
+    ap.add_argument("--repeat", type=int, default=2,
+                    help="runs of each diagnose, in passes over all records (default 2)")
     a = ap.parse_args(argv)
     repeat = max(1, a.repeat)
     data = _data_dir(a.data)

@@ -138,7 +138,8 @@ def gauss_newton_gain(J: np.ndarray, f: np.ndarray, z: np.ndarray, lo: np.ndarra
 
 def parameter_columns(fun: Callable[[dict[str, float]], np.ndarray], values: Mapping[str, float],
                       scales: Mapping[str, float], f0: np.ndarray, *, rel: float = 1e-4,
-                      map_fn: Callable[[Callable, Iterable], Sequence] = lambda f, xs: [f(x) for x in xs]) -> np.ndarray:
+                      map_fn: Callable[[Callable, Iterable], Sequence] = lambda f, xs: [f(x) for x in xs],
+                      ) -> np.ndarray:
     """The forward-difference Jacobian of ``fun`` (residuals of named parameter ``values``; ``f0`` at
     ``values``) over the parameters of ``scales``: a step of ``rel`` times each one's scale (its typical
     size), each column per unit of that scale, the columns side by side with ``map_fn`` (one call of

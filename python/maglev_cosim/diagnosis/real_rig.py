@@ -599,7 +599,8 @@ def calibrate(rig: Rig, records: Sequence[RigRecord], params: PlantParams | None
     r0 = resid(z0)
     refresh = CAL_JAC_REFRESH if len(z0) > 2 else 1
     fun, jac = difference_jacobian(resid, lo, hi, 1e-3, map_fn=_map, unit_floor=True, refresh=refresh, scale=scale)
-    sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), x_scale=scale, max_nfev=max_evaluations, ftol=CAL_FTOL, xtol=CAL_XTOL)
+    sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), x_scale=scale, max_nfev=max_evaluations, ftol=CAL_FTOL,
+                        xtol=CAL_XTOL)
     if refresh > 1:
         # the standard errors below need differences, not Broyden's update; and where Broyden's
         # Jacobian stopped short of the optimum (the Gauss-Newton step of the differences, within the

@@ -153,7 +153,8 @@ def control(controller: Controller, w: np.ndarray, y: np.ndarray, current: np.nd
     return u
 
 
-def settled_start_vector(params: PlantParams | Mapping[str, float] | np.ndarray, x_op: float) -> tuple[np.ndarray, float]:
+def settled_start_vector(params: PlantParams | Mapping[str, float] | np.ndarray,
+                         x_op: float) -> tuple[np.ndarray, float]:
     """:func:`maglev_cosim.loop.simulate.settled_start` on a parameter vector
     (:func:`maglev_cosim.plant.fast.param_vector`), for the replays of a fit: the start state set in
     a copy of the vector, and the hold input [MU]."""
