@@ -78,6 +78,7 @@ def test_a_disturbance_estimate_is_kept_for_the_same_record_and_model(tmp_path, 
     without a new search; another model, another record (even with the same samples), another
     argument, or an ``info`` dict that asks for the figures search again."""
     from maglev_cosim.diagnosis import replay as rp
+    from maglev_cosim.diagnosis.memo import Memo
     rec = _clean_record(baseline_params(), n=1500)
     calls = []
     real = rp._estimate_noise
@@ -87,7 +88,7 @@ def test_a_disturbance_estimate_is_kept_for_the_same_record_and_model(tmp_path, 
         return real(*a, **kw)
 
     monkeypatch.setattr(rp, "_estimate_noise", counted)
-    monkeypatch.setattr(rp, "_ESTIMATES", rp.OrderedDict())
+    monkeypatch.setattr(rp, "_ESTIMATES", Memo(rp.ESTIMATES_KEPT))
     p = baseline_params()
     first = estimate_noise(rec, p)
     assert estimate_noise(rec, dict(p)) is first and len(calls) == 1
