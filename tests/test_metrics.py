@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from maglev_cosim.diagnosis.metrics import correlation, nrmse_fit, psd, resid
+from maglev_cosim.diagnosis.metrics import chi2_quantile, correlation, nrmse_fit, psd, resid
 
 
 def test_nrmse_fit_matches_matlabs_definition():
@@ -38,3 +38,14 @@ def test_psd_finds_a_tone():
     x = np.sin(2 * np.pi * 50 * t) + 0.01 * np.random.default_rng(1).standard_normal(len(t))
     f, p = psd(x, 1e-3)
     assert f[np.argmax(p)] == pytest.approx(50.0, abs=0.5)
+
+
+@pytest.mark.parametrize("q", [0.5, 0.95, 0.99, 1 - 1e-3, 1 - 1e-4])
+@pytest.mark.parametrize("dof", [1, 2, 3, 7, 30])
+def test_chi2_quantile_is_scipy_stats_chi2_ppf(q, dof):
+    # the verdicts' thresholds: the same numbers as scipy.stats, which the package no longer imports
+    from scipy.stats import chi2, norm
+
+    assert chi2_quantile(q, dof) == pytest.approx(chi2.ppf(q, dof), rel=1e-13)
+    band = resid(np.ones(100) + np.arange(100) % 3, np.arange(100.0), confidence=0.99).band
+    assert band == pytest.approx(norm.ppf(0.995) / 10, rel=1e-13)

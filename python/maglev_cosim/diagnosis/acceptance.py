@@ -6,7 +6,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2
+
+from .metrics import chi2_quantile
 
 BLOCK = 0.8                  # [s] alternating fit / held-out blocks
 ALPHA = 1e-3                 # false-acceptance probability of the likelihood-ratio test
@@ -30,7 +31,7 @@ def accept(cost_before: float, cost_after: float, n_eff: float, n_params: int) -
     """
     gain = 1.0 - cost_after / cost_before if cost_before > 0 else 0.0
     stat = n_eff * math.log(cost_before / cost_after) if cost_after > 0 else math.inf
-    threshold = float(chi2.ppf(1 - ALPHA, n_params))
+    threshold = float(chi2_quantile(1 - ALPHA, n_params))
     ok = bool(stat > threshold and gain >= MIN_GAIN)
     return ok, {"lr_statistic": float(stat), "threshold": threshold, "held_out_gain": float(gain),
                 "n_eff": float(n_eff)}

@@ -12,10 +12,10 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
-from scipy.stats import chi2
 
 from ..plant.fast import effect_params, param_table
 from ..plant.formulas import positions
+from .metrics import chi2_quantile
 from .problem import Coord, Parameterization, Problem, fit, residuals
 from .residual import effective_samples, spectral_peaks
 
@@ -579,7 +579,7 @@ def periodic_evidence(prob: Problem, values: Mapping[str, float]) -> tuple[bool,
     W = [np.linalg.inv(c) for c in covs]
     mean = np.linalg.solve(sum(W), sum(w_ @ p for w_, p in zip(W, est_a)))
     stat = float(sum((p - mean) @ w_ @ (p - mean) for w_, p in zip(W, est_a)))
-    threshold = float(chi2.ppf(1 - PERIODIC_ALPHA, 2 * (nblk - 1)))
+    threshold = float(chi2_quantile(1 - PERIODIC_ALPHA, 2 * (nblk - 1)))
     amp = np.hypot(est_a[:, 0], est_a[:, 1])          # per block, relative to the fitted amplitude
     ph = np.arctan2(est_a[:, 1], est_a[:, 0])
     a_mean = float(np.hypot(*mean))

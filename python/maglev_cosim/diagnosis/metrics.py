@@ -13,7 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, stats
+from scipy import special
+
+# Imported inside functions, on purpose: scipy.signal (0.7 s of imports with the scipy.stats it
+# loads, which a diagnosis needs only at its figures; a real rig's loads it on its background thread).
 
 
 def nrmse_fit(y: np.ndarray, y_hat: np.ndarray) -> float:
@@ -28,13 +31,22 @@ def nrmse_fit(y: np.ndarray, y_hat: np.ndarray) -> float:
     return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / spread))
 
 
+def chi2_quantile(q: float, dof: float) -> float:
+    """The ``q`` quantile of the chi-square distribution with ``dof`` degrees of freedom: scipy.stats's
+    ``chi2.ppf(q, dof)`` by its own formula (the inverse of the regularised lower incomplete gamma
+    function), without the 0.4 s of importing scipy.stats."""
+    return float(2.0 * special.gammaincinv(dof / 2.0, q))
+
+
 def correlation(a: np.ndarray, b: np.ndarray | None, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
     """Normalised correlation ``r(τ) = Σ a[k]·b[k − τ] / (N·σ_a·σ_b)`` for ``τ = −max_lag … max_lag``
     (``b = None``: the autocorrelation of ``a``). Means are removed first."""
     a = np.asarray(a, float) - np.mean(a)
     b = a if b is None else np.asarray(b, float) - np.mean(b)
+    from scipy.signal import correlate
+
     n = len(a)
-    full = signal.correlate(a, b, mode="full", method="fft") / (n * a.std() * b.std())
+    full = correlate(a, b, mode="full", method="fft") / (n * a.std() * b.std())
     mid = n - 1
     lags = np.arange(-max_lag, max_lag + 1)
     return lags, full[mid + lags]
@@ -62,7 +74,7 @@ def resid(e: np.ndarray, u: np.ndarray, *, max_lag: int = 25, confidence: float 
     (MATLAB ``resid``), with the band ``z_(1+c)/2 / √N`` of the white-noise hypothesis."""
     lags, auto = correlation(e, None, max_lag)
     _, cross = correlation(e, u, max_lag)
-    band = float(stats.norm.ppf(0.5 + confidence / 2) / np.sqrt(len(e)))
+    band = float(special.ndtri(0.5 + confidence / 2) / np.sqrt(len(e)))   # the normal quantile
     return Resid(lags, auto, cross, band, confidence, int(np.sum((np.abs(auto) > band) & (lags != 0))),
                  int(np.sum(np.abs(cross) > band)))
 
@@ -70,7 +82,9 @@ def resid(e: np.ndarray, u: np.ndarray, *, max_lag: int = 25, confidence: float 
 def psd(x: np.ndarray, ts: float, *, seconds_per_segment: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """Welch's PSD of ``x`` sampled at ``ts`` [s]: frequencies [Hz] and density [unit²/Hz],
     Hann segments of ``seconds_per_segment`` (at most the record), half overlapping."""
+    from scipy.signal import welch
+
     x = np.asarray(x, float)
     nper = int(min(len(x), max(16, round(seconds_per_segment / ts))))
-    f, p = signal.welch(x - x.mean(), fs=1.0 / ts, nperseg=nper)
+    f, p = welch(x - x.mean(), fs=1.0 / ts, nperseg=nper)
     return f, p

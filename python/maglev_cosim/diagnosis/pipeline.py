@@ -24,7 +24,6 @@ from dataclasses import dataclass, field, replace
 from multiprocessing import get_context
 
 import numpy as np
-from scipy.stats import chi2
 from threadpoolctl import threadpool_limits
 
 from ..records.record import Record
@@ -32,7 +31,7 @@ from .acceptance import ALPHA, CRITERION, MIN_GAIN, accept, fit_blocks
 from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .jacobian import parameter_columns
-from .metrics import nrmse_fit
+from .metrics import chi2_quantile, nrmse_fit
 from .problem import Fit, Parameterization, Problem, cost_on, fit, one_thread, residuals, stacked, thread_map
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
@@ -399,7 +398,7 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
         fit_after, n_fit, lr_fit = _lr(residuals(prob, vals, ~hold_mask), fit_before)
         stats = {**stats, "fit_cost_before": float(fit_before), "fit_cost_after": fit_after,
                  "fit_lr_statistic": float(lr_fit), "fit_n_eff": float(n_fit)}
-        fit_threshold = float(chi2.ppf(1 - FIT_SIDE_ALPHA, len(eff.params)))
+        fit_threshold = float(chi2_quantile(1 - FIT_SIDE_ALPHA, len(eff.params)))
         stats = {**stats, "fit_threshold": fit_threshold}
         if not lr_fit > fit_threshold:
             ok = False
@@ -459,7 +458,7 @@ def distinct(chosen: Mapping, rival: Mapping, alpha: float = DISTINCT_ALPHA) -> 
     difference indistinguishable: the differences concentrate in the few samples after each step.)"""
     j_c, j_r, n_eff = chosen["held_out_cost_after"], rival["held_out_cost_after"], chosen["n_eff"]
     stat = n_eff * math.log(j_r / j_c) if j_c > 0 and j_r > 0 else math.inf
-    threshold = float(chi2.ppf(1 - alpha, 1))
+    threshold = float(chi2_quantile(1 - alpha, 1))
     return {"lr_statistic": float(stat), "threshold": threshold, "distinct": bool(stat > threshold)}
 
 
@@ -518,7 +517,7 @@ def innovations_test(chosen: tuple[np.ndarray, np.ndarray], rival: tuple[np.ndar
         return {"lr_statistic": 0.0, "threshold": math.inf, "distinct": False, "samples": n, "criterion": "innovations"}
     share = min(effective_samples(z_c[ok]), effective_samples(z_r[ok])) / n
     stat = float(np.sum(l_r[ok] - l_c[ok])) * share
-    threshold = float(chi2.ppf(1 - alpha, dof))
+    threshold = float(chi2_quantile(1 - alpha, dof))
     return {"lr_statistic": stat, "threshold": threshold, "distinct": bool(abs(stat) > threshold),
             "samples": n, "effective_share": float(share), "criterion": "innovations"}
 

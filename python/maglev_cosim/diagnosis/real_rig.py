@@ -30,11 +30,12 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
-from scipy import signal
 from scipy.optimize import least_squares, minimize_scalar
 from threadpoolctl import threadpool_limits
 
-# Imported inside a function, on purpose: matplotlib (heavy, only the plots).
+# Imported inside functions, on purpose: matplotlib (heavy, only the plots) and scipy.signal (0.7 s
+# with the scipy.stats it loads, only the figures' spectra): both loaded on the background thread
+# while the first stages run (_load_matplotlib).
 from .._html import write_html
 from ..loop import fast_loop
 from ..loop.controllers import Cascade, needs_current
@@ -1507,6 +1508,8 @@ def current_to_position(rig: Rig, r: RigRecord, params: PlantParams, *, seconds_
     the estimate is biased where the coherence is low; the JSON gives both on 1–20 Hz."""
     if r.current is None:
         return {}
+    from scipy import signal
+
     fs = 1.0 / r.ts
     nper = min(len(r.y), int(seconds_per_segment * fs))
     z = r.position - r.position.mean()
@@ -1841,6 +1844,13 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
             result.second_force_lag = {"mode": mode, "values": {n: cal.values[n] for n in second},
                                        "sigma": {n: cal.sigma[n] for n in second},
                                        "on_bounds": [n for n in cal.on_bounds if n in second]}
+    # the model's parameters are final here (the correction below changes the filter's disturbance
+    # model only): the linearised model's frequency response is drawn on the background thread while
+    # the correction is fitted, instead of at the end beside the figures (half a second of plotting)
+    out.mkdir(parents=True, exist_ok=True)
+    plot_jobs = {}
+    if segs:
+        plot_jobs["frequency"] = background.submit(frequency_plot, rig, segs[0], params, out)
     own_models: dict = {}
     if cal is not None and effects:
         # where the catalogue explains too little: the located correction at the mechanics, a force
@@ -1906,11 +1916,8 @@ def _run(rig: Rig, records: Sequence[Measured], out: Path | str, *, validate: Se
     # the plots that need only the calibrated model are drawn on the background thread meanwhile
     # (matplotlib's Python beside the replays, which release the GIL; 2.8 s of plots at the end of a
     # 15 s record's diagnosis before), all on that one thread (matplotlib is not thread-safe)
-    out.mkdir(parents=True, exist_ok=True)
-    plot_jobs = {}
     if segs:
         plot_jobs["prediction"] = background.submit(prediction_plot, rig, segs[0], params, out, noise, black_box)
-        plot_jobs["frequency"] = background.submit(frequency_plot, rig, segs[0], params, out)
     if result.correction is not None:
         plot_jobs["correction"] = background.submit(correction_plot, rig, result.correction, params,
                                                     out / "correction.png")
@@ -2369,8 +2376,8 @@ def event_windows(r: RigRecord, y_pred: np.ndarray, h: int) -> list[tuple[str, i
 
 
 def _load_matplotlib() -> None:
-    """Imports what the plots use (a second of imports, done ahead)."""
-    for name in ("matplotlib.figure", "matplotlib.backends.backend_agg"):
+    """Imports what the figures and the plots use (a second and a half of imports, done ahead)."""
+    for name in ("scipy.signal", "matplotlib.figure", "matplotlib.backends.backend_agg"):
         importlib.import_module(name)
 
 

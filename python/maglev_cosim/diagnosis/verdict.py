@@ -47,15 +47,21 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
-from scipy.stats import chi2
 
 from ..records.record import Record
 from .effects import BASELINE, CATALOGUE
 from .locate import best_per_location, generic_corrections, locate
-from .metrics import nrmse_fit
+from .metrics import chi2_quantile, nrmse_fit
 from .problem import on_fit_steps
 from .replay import HORIZON_S, NoiseModel, estimate_noise, predict, replay_injected
+
+def lfilter(b, a, x, zi=None):
+    """``scipy.signal.lfilter``, imported on first use: scipy.signal (with the scipy.stats it loads)
+    is 0.7 s of every command's start, and only these records' noise and regressors use it here."""
+    from scipy.signal import lfilter as filt
+
+    return filt(b, a, x) if zi is None else filt(b, a, x, zi=zi)
+
 
 #: Lags [samples] of the innovation ARX fit.
 ARX_LAGS = 10
@@ -300,7 +306,7 @@ def reference_share(rec: Record, innov: np.ndarray, skip: int = 200) -> dict:
         return {"r2": 0.0, "statistic": 0.0, "threshold": math.inf}
     coef, *_ = np.linalg.lstsq(X, e, rcond=None)
     r2 = float(1.0 - np.var(e - X @ coef) / var)
-    return {"r2": r2, "statistic": len(e) * r2, "threshold": float(chi2.ppf(1 - REFERENCE_ALPHA, X.shape[1] - 1))}
+    return {"r2": r2, "statistic": len(e) * r2, "threshold": float(chi2_quantile(1 - REFERENCE_ALPHA, X.shape[1] - 1))}
 
 
 @dataclass
