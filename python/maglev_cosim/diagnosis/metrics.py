@@ -41,10 +41,10 @@ def chi2_quantile(q: float, dof: float) -> float:
 def correlation(a: np.ndarray, b: np.ndarray | None, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
     """Normalised correlation ``r(τ) = Σ a[k]·b[k − τ] / (N·σ_a·σ_b)`` for ``τ = −max_lag … max_lag``
     (``b = None``: the autocorrelation of ``a``). Means are removed first."""
-    a = np.asarray(a, float) - np.mean(a)
-    b = a if b is None else np.asarray(b, float) - np.mean(b)
     from scipy.signal import correlate
 
+    a = np.asarray(a, float) - np.mean(a)
+    b = a if b is None else np.asarray(b, float) - np.mean(b)
     n = len(a)
     full = correlate(a, b, mode="full", method="fft") / (n * a.std() * b.std())
     mid = n - 1

@@ -55,6 +55,7 @@ from .metrics import chi2_quantile, nrmse_fit
 from .problem import on_fit_steps
 from .replay import HORIZON_S, NoiseModel, estimate_noise, predict, replay_injected
 
+
 def lfilter(b, a, x, zi=None):
     """``scipy.signal.lfilter``, imported on first use: scipy.signal (with the scipy.stats it loads)
     is 0.7 s of every command's start, and only these records' noise and regressors use it here."""
