@@ -372,3 +372,22 @@ def test_a_faint_effect_leaves_the_final_model(monkeypatch):
     selected = ["sensor_nonlinearity"]                    # a lone faint effect leaves the baseline
     pipeline.refit(Prob(), {"k_x2": -851.0}, selected, lambda s: None)
     assert selected == [] and calls == [["sensor_nonlinearity"], []]
+
+
+def test_the_test_on_likelihoods_takes_their_difference_and_survives_huge_ones():
+    # a filter that the record's model fits badly: mean NLLs of hundreds, whose exp overflows (seed
+    # 5400 of the project emulator's current limits ended in a math domain error)
+    from maglev_cosim.diagnosis.acceptance import accept, accept_nll
+
+    ok, figs = accept_nll(812.0, 905.0, 3000, 2)
+    assert not ok and figs["lr_statistic"] < 0 and figs["held_out_gain"] < 0
+    ok, figs = accept_nll(905.0, 812.0, 3000, 2)
+    assert ok and figs["lr_statistic"] == pytest.approx(3000 * 93.0)
+    # where exp does not overflow, the same decision and figures as accept on the costs exp(NLL)
+    for before, after in ((-7.31, -7.36), (-7.31, -7.3102), (2.0, 1.0)):
+        ok_n, f_n = accept_nll(before, after, 5000, 2)
+        ok_c, f_c = accept(np.exp(before), np.exp(after), 5000, 2)
+        assert ok_n == ok_c
+        assert f_n["lr_statistic"] == pytest.approx(f_c["lr_statistic"], rel=1e-9)
+        assert f_n["held_out_gain"] == pytest.approx(f_c["held_out_gain"], rel=1e-9, abs=1e-12)
+    assert not accept_nll(float("inf"), 1.0, 100, 2)[0] and not accept_nll(1.0, float("nan"), 100, 2)[0]

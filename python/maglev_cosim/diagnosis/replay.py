@@ -21,7 +21,7 @@ from ..loop.pid import PID
 from ..plant import fast, formulas
 from ..plant.params import as_params, get_params
 from ..records.record import Record
-from .acceptance import accept, fit_blocks
+from .acceptance import accept_nll, fit_blocks
 from .memo import Memo
 
 
@@ -297,7 +297,7 @@ def _coloured_choice(rec: Record, params: Mapping[str, float], white: NoiseModel
     except ValueError:
         return white
     n_held = int(np.sum(held[200:]))
-    ok, figs = accept(float(np.exp(nll_w_held)), float(np.exp(nll_c_held)), n_held, 2)
+    ok, figs = accept_nll(nll_w_held, nll_c_held, n_held, 2)
     if info is not None:
         info.update({"coloured_tried": True, "coloured_accepted": ok, "held_out_nll_white": nll_w_held,
                      "held_out_nll_coloured": nll_c_held, "split": split, **figs})
