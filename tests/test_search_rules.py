@@ -391,3 +391,5 @@ def test_the_test_on_likelihoods_takes_their_difference_and_survives_huge_ones()
         assert f_n["lr_statistic"] == pytest.approx(f_c["lr_statistic"], rel=1e-9)
         assert f_n["held_out_gain"] == pytest.approx(f_c["held_out_gain"], rel=1e-9, abs=1e-12)
     assert not accept_nll(float("inf"), 1.0, 100, 2)[0] and not accept_nll(1.0, float("nan"), 100, 2)[0]
+    # costs: an infinite or undefined cost after is a rejection
+    assert not accept(1.0, float("inf"), 100, 2)[0] and not accept(1.0, float("nan"), 100, 2)[0]

@@ -30,7 +30,10 @@ def accept(cost_before: float, cost_after: float, n_eff: float, n_params: int) -
     with probability 0.999; and (2) the held-out cost falls by at least 3 %.
     """
     gain = 1.0 - cost_after / cost_before if cost_before > 0 else 0.0
-    stat = n_eff * math.log(cost_before / cost_after) if cost_after > 0 else math.inf
+    ratio = cost_before / cost_after if cost_after > 0 else math.inf
+    # a cost after that is infinite (a replay that diverged) or not a number is a rejection, not a
+    # math domain error
+    stat = n_eff * math.log(ratio) if ratio > 0 else -math.inf
     threshold = float(chi2_quantile(1 - ALPHA, n_params))
     ok = bool(stat > threshold and gain >= MIN_GAIN)
     return ok, {"lr_statistic": float(stat), "threshold": threshold, "held_out_gain": float(gain),
