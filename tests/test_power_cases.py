@@ -59,6 +59,24 @@ def test_no_second_effect_beside_a_limit_active_62_percent(tmp_path):
     assert abs(d.parameters["i_max"] / i_max - 1) <= 0.05, (d.parameters["i_max"], i_max)
 
 
+def test_a_limit_the_k_step_fit_would_take_off_stays_alone(tmp_path):
+    # seed 5401 of benchmark seeds 5400: a limit active in 28 % of the samples, accepted at LR 1227,
+    # which the k-step refit took to within 0.3 sigma of off; refitted without it, the search in
+    # prediction mode took a Coulomb friction first and the limit 12 % high, `explained` at 3.0 times
+    # the true model's 20 ms error. Judged at the free run's fit, it stays, alone.
+    seed = 5401
+    dist = draw_disturbance(seed)
+    share = dm._log_uniform(seed, 2201, *dm.LIMIT_SHARE)
+    pct = dm._truth(dm.SYNTH(tmp_path / "null.csv", seed=seed, disturbance=dist))["current_percentiles"]
+    i_max = dm._limit_for_share(tmp_path / "limit.csv", seed, dist, share, pct[50], pct[100])
+    planted = {"current_saturation": {"i_max": i_max}}
+    rec, path, d = _diagnose(tmp_path, seed, planted)
+    assert 0.2 < dm._truth(path)["i_limited_share"] < 0.4
+    assert d.selected == ["current_saturation"], d.selected
+    assert d.verdict.verdict == "explained"
+    assert d.verdict.after.prediction_rms["y"] < 1.2 * dm.true_prediction_y(rec, path, planted)
+
+
 @pytest.mark.parametrize("emulator, seed, v_c", [("rig", 3101, 1e-4), ("ivp", 3100, 1e-3)])
 def test_a_friction_and_its_smoothing_speed_are_recovered(tmp_path, emulator, seed, v_c):
     """The smoothing speed is fitted with the friction (Eq. 8's F_c·tanh(v/v_c), docs/model.md): on

@@ -905,15 +905,34 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
     """The final model refitted on the whole record: its values and their uncertainties. An
     effect the refit turns off (:meth:`~.effects.Effect.is_off`) leaves the model (``selected``
     is updated in place) and the rest is refitted without it; so does an effect whose parameter
-    lies within :data:`MIN_EFFECT_SIGMA` standard errors of off."""
+    lies within :data:`MIN_EFFECT_SIGMA` standard errors of off. Where the k-step fit that ends a
+    free-run refit (:func:`_kstep_ridge`, :func:`_kstep_screened`) took an effect there and the free
+    run's fit did not, the free run's values are kept instead."""
     def without(effects: Sequence[str]) -> tuple[dict, dict]:
         nonlocal current
         for e in effects:
             selected.remove(e)
             current = turned_off(prob, e, current)
-        return _refit(prob, current, selected, say)
+        return _refit(prob, current, selected, say)[:2]
 
-    values, unc = _refit(prob, current, selected, say)
+    def gone(values: dict, unc: dict) -> list[str]:
+        return [e for e in selected if CATALOGUE[e].is_off(values)
+                or (z := CATALOGUE[e].distance_from_off(values, unc)) is not None and z < MIN_EFFECT_SIGMA]
+
+    values, unc, free = _refit(prob, current, selected, say)
+    if free is not None and gone(values, unc):
+        # the k-step fit polishes the effects the search found on held-out blocks; it does not remove
+        # them. Where it took one to (or within noise of) off, the effect is judged at the free run's
+        # fit instead. On the project emulator's current limit of seed 5401 (benchmark seeds 5400,
+        # active in 28 % of the samples, accepted at LR 1227) the k-step fit, 20 % lower, left it
+        # within 0.3σ of off; refitted without it, the free run fell to -10.8 % and the search in
+        # prediction mode took a Coulomb friction first, then the limit 12 % high: `explained` at 3.0
+        # times the true model's 20 ms error.
+        unc_free = _uncertainties(prob, current, selected, free)
+        if not gone(free, unc_free):
+            say(f"the k-step fit left {', '.join(gone(values, unc))} off or within {MIN_EFFECT_SIGMA:g}σ of off, "
+                "the free run's fit does not: the free run's values are kept")
+            values, unc = free, unc_free
     dropped = [e for e in selected if CATALOGUE[e].is_off(values)]
     if dropped:
         say(f"the refit turned {', '.join(dropped)} off: refitting without it")
@@ -927,7 +946,18 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
     return values, unc
 
 
-def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], say: Say) -> tuple[dict, dict]:
+def _uncertainties(prob: Problem, current: dict[str, float], selected: Sequence[str], values: dict) -> dict:
+    """The standard errors of the final model's ``values`` on the whole record (:func:`uncertainty`)."""
+    parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in selected)]
+    whole = prob.with_base(current).with_mask(np.ones(prob.rec.n, bool))
+    steps = {k: v for p in parts for k, v in p.uncertainty_scales().items()}
+    return uncertainty(whole, values, steps)
+
+
+def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], say: Say
+           ) -> tuple[dict, dict, dict | None]:
+    """The final model's values on the whole record and their uncertainties, and in free-run mode
+    the free run's fit where the k-step fit then took other values (else None)."""
     say(f"refitting the final model ({', '.join(selected) or 'baseline only'}) on the whole record")
     whole = prob.with_base(current).with_mask(np.ones(prob.rec.n, bool))   # values besides the fitted ones stay
     parts: list[Parameterization] = [BASELINE, *(CATALOGUE[e] for e in selected)]
@@ -958,13 +988,14 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
         kstep = _weighted(replace(whole, noise=whole.disturbances(values)), values)
         final = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
         values = {**values, **final.values}
-    elif any(CATALOGUE[e].absorbed_by for e in selected):
-        values = _kstep_ridge(whole, parts, values, say)
-    else:
-        values = _kstep_screened(whole, parts, values, say)
+    free = None
+    if prob.noise is None:
+        free = values
+        values = (_kstep_ridge if any(CATALOGUE[e].absorbed_by for e in selected) else _kstep_screened)(
+            whole, parts, values, say)
     say("estimating parameter uncertainties")
-    steps = {k: v for p in parts for k, v in p.uncertainty_scales().items()}
-    return values, uncertainty(whole, values, steps)
+    kept_free = free if free is not None and values != free else None
+    return values, _uncertainties(prob, current, selected, values), kept_free
 
 
 #: The share by which the k-step prediction's cost must fall for :func:`_kstep_ridge` to take its
