@@ -230,3 +230,29 @@ def test_a_run_writes_its_typed_stages_in_the_order_of_diagnosis_json(stages):
     assert list(bare.own_keys()) == ["rig", "rig_file", "records", "validation", "horizons_s", "calibration",
                                      "disturbance_model"]
     assert json.loads(json.dumps(bare.to_json(), allow_nan=False))["calibration"] is None
+
+
+def test_the_prediction_plots_windows_show_two_places():
+    # a step where the model also errs most: the second window goes to the next largest error
+    # elsewhere, not to the same step again (step/MPC showed its one step twice)
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from maglev_cosim.diagnosis.real_rig import WINDOW_S, event_windows
+
+    ts, n = 1e-3, 15000
+    pos = np.where(np.arange(n) < 5000, 0.010, 0.012)
+    y = pos.copy()
+    y_pred = y.copy()
+    y_pred[5010] += 1e-3       # the largest error, at the step
+    y_pred[11000] += 5e-4      # the next, ten seconds on
+    r = SimpleNamespace(y=y, position=pos, ts=ts)
+    (t1, a1, e1), (t2, a2, e2) = event_windows(r, y_pred, 20)
+    assert t1.startswith("largest move and model error") and a1 <= 5000 < e1
+    assert t2.startswith("largest model error elsewhere") and a2 <= 11000 < e2
+    assert e1 - a1 == e2 - a2 == round(WINDOW_S / ts) and (e1 <= a2 or e2 <= a1)
+    # where the largest error lies elsewhere, the two windows are the move's and the error's
+    y_pred[5010] = y[5010]
+    (t1, a1, _), (t2, a2, e2) = event_windows(r, y_pred, 20)
+    assert t1.startswith("largest move (") and t2.startswith("largest model error (") and a2 <= 11000 < e2

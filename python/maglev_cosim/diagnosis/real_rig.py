@@ -2358,7 +2358,9 @@ WINDOW_S = 0.8
 def event_windows(r: RigRecord, y_pred: np.ndarray, h: int) -> list[tuple[str, int, int]]:
     """Two windows of the segment worth looking at: around its largest move of the position over
     ``h`` samples (a step of the reference, usually) and around the model's largest error ``h``
-    ahead; (title, first sample, end sample)."""
+    ahead, outside the first window where the segment has room for both (a step is often where the
+    model errs most: two windows of the same step showed nothing twice); (title, first sample, end
+    sample)."""
     n = len(r.y)
     w = min(n, int(round(WINDOW_S / r.ts)))
     skip = min(n - w, int(round(SETTLE_S / r.ts)))
@@ -2368,11 +2370,21 @@ def event_windows(r: RigRecord, y_pred: np.ndarray, h: int) -> list[tuple[str, i
     err = np.abs(r.y - y_pred)
     err[~np.isfinite(err)] = 0
     err[:skip] = 0
-    out = []
-    for title, k in (("largest move", int(np.argmax(move))), ("largest model error", int(np.argmax(err)))):
-        a = int(np.clip(k - w // 3, 0, n - w))
-        out.append((f"{title} (t = {k * r.ts:.2f} s)", a, a + w))
-    return out
+    def window(k: int) -> int:
+        return int(np.clip(k - w // 3, 0, n - w))
+
+    k_move, k_err = int(np.argmax(move)), int(np.argmax(err))
+    a = window(k_move)
+    first = f"largest move (t = {k_move * r.ts:.2f} s)"
+    if a <= k_err < a + w and n >= 4 * w:
+        first = f"largest move and model error (t = {k_move * r.ts:.2f} s)"
+        err[max(0, a - w):a + 2 * w] = 0      # the next largest, whose window then stays clear of the first
+        k_err = int(np.argmax(err))
+        second = f"largest model error elsewhere (t = {k_err * r.ts:.2f} s)"
+    else:
+        second = f"largest model error (t = {k_err * r.ts:.2f} s)"
+    b = window(k_err)
+    return [(first, a, a + w), (second, b, b + w)]
 
 
 def _load_matplotlib() -> None:
