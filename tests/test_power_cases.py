@@ -47,12 +47,17 @@ def test_a_friction_of_1_8_percent_of_the_weight_is_not_called_no_effect(tmp_pat
     assert d.verdict.after.prediction_rms["y"] < 1.2 * dm.true_prediction_y(rec, path, planted)
 
 
-def test_no_second_effect_beside_a_limit_active_62_percent(tmp_path):
-    seed = 2501
+def _benchmark_limit(tmp_path: Path, seed: int) -> float:
+    """The current limit the benchmark draws for ``seed`` (scripts/diagnosis_matrix.py) [A]."""
     dist = draw_disturbance(seed)
     share = dm._log_uniform(seed, 2201, *dm.LIMIT_SHARE)
     pct = dm._truth(dm.SYNTH(tmp_path / "null.csv", seed=seed, disturbance=dist))["current_percentiles"]
-    i_max = dm._limit_for_share(tmp_path / "limit.csv", seed, dist, share, pct[50], pct[100])
+    return dm._limit_for_share(tmp_path / "limit.csv", seed, dist, share, pct[50], pct[100])
+
+
+def test_no_second_effect_beside_a_limit_active_62_percent(tmp_path):
+    seed = 2501
+    i_max = _benchmark_limit(tmp_path, seed)
     _, path, d = _diagnose(tmp_path, seed, {"current_saturation": {"i_max": i_max}})
     assert dm._truth(path)["i_limited_share"] > 0.5
     assert d.selected == ["current_saturation"], d.selected
@@ -64,13 +69,8 @@ def test_a_limit_the_k_step_fit_would_take_off_stays_alone(tmp_path):
     # which the k-step refit took to within 0.3 sigma of off; refitted without it, the search in
     # prediction mode took a Coulomb friction first and the limit 12 % high, `explained` at 3.0 times
     # the true model's 20 ms error. Judged at the free run's fit, it stays, alone.
-    seed = 5401
-    dist = draw_disturbance(seed)
-    share = dm._log_uniform(seed, 2201, *dm.LIMIT_SHARE)
-    pct = dm._truth(dm.SYNTH(tmp_path / "null.csv", seed=seed, disturbance=dist))["current_percentiles"]
-    i_max = dm._limit_for_share(tmp_path / "limit.csv", seed, dist, share, pct[50], pct[100])
-    planted = {"current_saturation": {"i_max": i_max}}
-    rec, path, d = _diagnose(tmp_path, seed, planted)
+    planted = {"current_saturation": {"i_max": _benchmark_limit(tmp_path, 5401)}}
+    rec, path, d = _diagnose(tmp_path, 5401, planted)
     assert 0.2 < dm._truth(path)["i_limited_share"] < 0.4
     assert d.selected == ["current_saturation"], d.selected
     assert d.verdict.verdict == "explained"
