@@ -43,9 +43,9 @@ def accept(cost_before: float, cost_after: float, n_eff: float, n_params: int) -
 def accept_nll(nll_before: float, nll_after: float, n_eff: float, n_params: int) -> tuple[bool, dict]:
     """:func:`accept` on two models' held-out mean negative log-likelihoods per sample (a filter's
     ``log s + e²/s``: the costs ``exp(NLL)``), taken as their difference: a filter that a record's
-    model fits badly reaches a mean NLL of hundreds, whose exp alone overflows (on seed 5400 of the
-    project emulator's current limits a cost ratio of 0 ended the diagnosis in a math domain error).
-    A NLL that is not finite is not accepted."""
+    model fits badly reaches a mean NLL of hundreds, whose exp alone overflows (on the project
+    emulator's current limit of seed 5401, benchmark seeds 5400, a cost ratio of 0 ended the
+    diagnosis in a math domain error). An NLL that is not finite is not accepted."""
     if not (math.isfinite(nll_before) and math.isfinite(nll_after)):
         return False, {"lr_statistic": -math.inf, "threshold": float(chi2_quantile(1 - ALPHA, n_params)),
                        "held_out_gain": -math.inf, "n_eff": float(n_eff)}
