@@ -915,9 +915,15 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
             current = turned_off(prob, e, current)
         return _refit(prob, current, selected, say)[:2]
 
+    def off(values: dict) -> list[str]:
+        return [e for e in selected if CATALOGUE[e].is_off(values)]
+
+    def faint(values: dict, unc: dict) -> list[tuple[str, float]]:
+        return [(e, z) for e in selected for z in [CATALOGUE[e].distance_from_off(values, unc)]
+                if z is not None and z < MIN_EFFECT_SIGMA]
+
     def gone(values: dict, unc: dict) -> list[str]:
-        return [e for e in selected if CATALOGUE[e].is_off(values)
-                or (z := CATALOGUE[e].distance_from_off(values, unc)) is not None and z < MIN_EFFECT_SIGMA]
+        return list(dict.fromkeys([*off(values), *(e for e, _ in faint(values, unc))]))
 
     values, unc, free = _refit(prob, current, selected, say)
     if free is not None and gone(values, unc):
@@ -933,16 +939,15 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
             say(f"the k-step fit left {', '.join(gone(values, unc))} off or within {MIN_EFFECT_SIGMA:g}σ of off, "
                 "the free run's fit does not: the free run's values are kept")
             values, unc = free, unc_free
-    dropped = [e for e in selected if CATALOGUE[e].is_off(values)]
+    dropped = off(values)
     if dropped:
         say(f"the refit turned {', '.join(dropped)} off: refitting without it")
         values, unc = without(dropped)
-    faint = [(e, z) for e in selected for z in [CATALOGUE[e].distance_from_off(values, unc)]
-             if z is not None and z < MIN_EFFECT_SIGMA]
-    if faint:
-        say("the refit leaves " + ", ".join(f"{e} within {z:.1f}σ of off" for e, z in faint)
+    weak = faint(values, unc)
+    if weak:
+        say("the refit leaves " + ", ".join(f"{e} within {z:.1f}σ of off" for e, z in weak)
             + f" (at least {MIN_EFFECT_SIGMA:g}σ needed): refitting without it")
-        values, unc = without([e for e, _ in faint])
+        values, unc = without([e for e, _ in weak])
     return values, unc
 
 
