@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from maglev_cosim.diagnosis.compare import HORIZONS_S, WHO, compare
+from maglev_cosim.diagnosis.compare import HORIZONS_S, WHO, black_box_predictions, compare
 from maglev_cosim.diagnosis.replay import baseline_params, estimate_noise
 from maglev_cosim.loop import fast_loop
 from maglev_cosim.records.record import read_record
@@ -72,3 +72,14 @@ def test_the_closed_loop_prediction_sees_no_measurement_after_its_start(truth):
         fast_loop.predict_closed(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold,
                                  **{**kw, "horizons": [0, 5]})
     assert np.isfinite(a["u_pred"][0][k + 20])
+
+
+def test_black_boxes_computed_beforehand_give_the_same_table(truth):
+    """The diagnosis fits the black boxes beside its verdict (they need no model,
+    :func:`~maglev_cosim.diagnosis.compare.black_box_predictions`): the table is the one that
+    :func:`compare` makes by itself, to the bit; predictions for other horizons are not used."""
+    rec, params, noise = truth
+    alone = compare(rec, params, noise)
+    assert compare(rec, params, noise, black_box=black_box_predictions(rec)).to_json() == alone.to_json()
+    other = black_box_predictions(rec, (0.005, 0.02))
+    assert compare(rec, params, noise, black_box=other).to_json() == alone.to_json()

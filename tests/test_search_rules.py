@@ -418,3 +418,37 @@ def test_an_effect_the_k_step_fit_takes_off_is_judged_at_the_free_runs_fit(monke
     calls.clear()
     values, unc = pipeline.refit(prob, {"T_d": 2e-3}, selected, lambda s: None)
     assert selected == [] and calls == [["delay"], []]
+
+
+def test_the_gradient_screen_passes_a_second_effect_that_is_there_and_stops_those_that_are_not(tmp_path):
+    """A later round's gradient screen (issue 22, item 7): one Gauss-Newton step from the limit's model,
+    each effect off. The 2.5 ms delay planted beside the 0.72 A limit promises a likelihood ratio far
+    beyond the acceptance threshold; from the model of both, the effects that are not there promise
+    less than ``GRADIENT_SHARE`` of theirs and are not fitted. An effect the baseline can absorb (the limit,
+    the force exponent) names no gradient point: it is always screened by a short fit."""
+    rec, prob, hold, first = _limited(tmp_path, {"delay": {"T_d": 0.0025}}, i_max=0.72)
+
+    def screened(model, names):
+        points = {e: CATALOGUE[e].gradient_points(prob, model) for e in names}
+        out = pipeline.gradient_screen(prob, model, points, hold, cost_on(prob, model, hold),
+                                       cost_on(prob, model, ~hold), 2)
+        return out, {e: out[e][2] for e in names}, {e: out[e][0]["threshold"] for e in names}
+
+    out, lr, thr = screened(first, ["delay"])
+    assert lr["delay"] > 5 * thr["delay"], lr
+    entry, vals = out["delay"][:2]
+    assert entry["stage"] == "gradient screen" and entry["gradient"]["lr_promised"] == lr["delay"]
+    assert 0.001 < vals["T_d"] < 0.005, vals["T_d"]       # the one step goes the right way
+    # the model of both, fitted in full (what the next round starts from): the others promise little
+    parts = [BASELINE, CATALOGUE["current_saturation"], CATALOGUE["delay"]]
+    start = {**first, "T_d": 0.002}
+    both = {**start, **fit(prob.with_base(start), parts, [p.to_coords(start) for p in parts], max_nfev=60).values}
+    # (a pickup is linearised at the residual's strongest spectral peak, here the loop's resonance near
+    # 16 Hz that the random force excites: chosen as the largest of many, it promises 10 to 24 against
+    # 16.3 on seeds 5 to 7, and goes on to the short fit, judged on the held-out blocks, as before)
+    names = ["coulomb_friction", "sensor_nonlinearity", "force_lag", "amplifier_lag"]
+    out, lr, thr = screened(both, names)
+    for e in names:
+        assert lr[e] < pipeline.GRADIENT_SHARE * thr[e], (e, lr[e], thr[e])
+    for e in ("current_saturation", "force_exponent"):
+        assert CATALOGUE[e].gradient_points(prob, first) is None

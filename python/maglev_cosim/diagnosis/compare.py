@@ -120,8 +120,54 @@ def fit_boxes(recs: Sequence[Record], horizons_s: tuple[float, ...] = HORIZONS_S
     return boxes, notes
 
 
+@dataclass
+class BlackBoxPredictions:
+    """What the comparison needs of the black boxes (model-free, so computed while the diagnosis runs,
+    :func:`black_box_predictions`): per horizon [s], the predictions of both (NaN where none) and why a
+    horizon has none."""
+
+    horizons_s: tuple[float, ...]
+    predictions: dict[float, tuple[np.ndarray, np.ndarray]]
+    missing: dict[str, str]
+
+
+def black_box_predictions(rec: Record, horizons_s: tuple[float, ...] = HORIZONS_S, *,
+                          boxes: Boxes | None = None) -> BlackBoxPredictions:
+    """Both black boxes' predictions of ``rec`` per horizon: fitted on its fit blocks (or ``boxes``,
+    fitted on other records, :func:`fit_boxes`), each predicting within each block from that block's
+    own past only, as they were fitted; a record too short to fit one has none (NaN, and the reason).
+    They need no model: :func:`maglev_cosim.diagnosis.diagnose` computes them beside the verdict (on a
+    thread of its own, inside its own one-thread BLAS limit, so that this one's restores the same)."""
+    with threadpool_limits(limits=1):      # as compare: small systems, which BLAS threads only slow down
+        return _black_box_predictions(rec, horizons_s, boxes)
+
+
+def _black_box_predictions(rec: Record, horizons_s: tuple[float, ...], boxes: Boxes | None) -> BlackBoxPredictions:
+    fit = fit_blocks(rec.t) if boxes is None else np.ones(rec.n, bool)
+    preds: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+    notes: dict[str, str] = {}
+    for hs_s in horizons_s:
+        h = max(1, int(round(hs_s / rec.ts)))
+        yb, yp = np.full(rec.n, np.nan), np.full(rec.n, np.nan)
+        if boxes is None:
+            try:
+                train = [bb.Series(rec.y[s], rec.u[s], rec.ts) for s in _runs(fit)]
+                pair = bb.fit(train, h * rec.ts), bb.fit(train, h * rec.ts, future=False)
+            except ValueError as e:
+                pair, notes[f"{hs_s * 1e3:g} ms"] = None, str(e)
+        else:
+            pair = boxes.get(hs_s)
+        if pair is not None:
+            for s in _runs(fit) + _runs(~fit):
+                yb[s] = pair[0].predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
+                yp[s] = pair[1].predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
+        preds[hs_s] = (yb, yp)
+    return BlackBoxPredictions(tuple(horizons_s), preds, notes)
+
+
 def compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
-            horizons_s: tuple[float, ...] = HORIZONS_S, *, boxes: Boxes | None = None) -> RecordComparison:
+            horizons_s: tuple[float, ...] = HORIZONS_S, *, boxes: Boxes | None = None,
+            black_box: BlackBoxPredictions | None = None) -> RecordComparison:
     """The comparison of the module docstring for one CE152 record.
 
     Parameters
@@ -137,15 +183,19 @@ def compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
     boxes : dict, optional
         Black boxes fitted on other records (:func:`fit_boxes`): the whole record is judged (one
         role, ``record``). Default: fitted on the record's fit blocks, judged on both kinds of block.
+    black_box : BlackBoxPredictions, optional
+        The black boxes' predictions, computed already (:func:`black_box_predictions` of the same
+        record, horizons and ``boxes``).
     """
     # one BLAS thread: the black box's cross-validation solves hundreds of small systems, which
     # threads only slow down (and on a busy machine, by tens of times)
     with threadpool_limits(limits=1):
-        return _compare(rec, params, noise, horizons_s, boxes)
+        return _compare(rec, params, noise, horizons_s, boxes, black_box)
 
 
 def _compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
-             horizons_s: tuple[float, ...], boxes: Boxes | None) -> RecordComparison:
+             horizons_s: tuple[float, ...], boxes: Boxes | None,
+             black_box: BlackBoxPredictions | None) -> RecordComparison:
     start, u_hold = _settled_at_first_reading(rec, params)
     hs = [max(1, int(round(h / rec.ts))) for h in horizons_s]
     kw = dict(q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizons=hs, stride=STRIDE,
@@ -155,36 +205,24 @@ def _compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
     with ThreadPoolExecutor(max_workers=2) as pool:
         jobs = (pool.submit(fast_loop.predict_closed, start, record_controller(rec), rec.w, rec.y, rec.u, u_hold, **kw),
                 pool.submit(fast.predict_horizons, start, rec.y, rec.u, ts=rec.ts, **kw))
-        return _skills(rec, hs, horizons_s, boxes, jobs)
+        if black_box is None or tuple(black_box.horizons_s) != tuple(horizons_s):
+            black_box = _black_box_predictions(rec, horizons_s, boxes)
+        return _skills(rec, hs, horizons_s, boxes is not None, black_box, jobs)
 
 
-def _skills(rec: Record, hs: list[int], horizons_s: tuple[float, ...], boxes: Boxes | None, jobs) -> RecordComparison:
-    """:func:`_compare`'s figures; ``jobs``: the futures of the closed-loop and the measured-input
-    predictions."""
+def _skills(rec: Record, hs: list[int], horizons_s: tuple[float, ...], whole: bool, black_box: BlackBoxPredictions,
+            jobs) -> RecordComparison:
+    """:func:`_compare`'s figures; ``whole``: the record is judged as one (black boxes fitted on other
+    records); ``jobs``: the futures of the closed-loop and the measured-input predictions."""
     closed: dict | None = None
     measured: dict | None = None
-    fit = fit_blocks(rec.t) if boxes is None else np.ones(rec.n, bool)
-    roles = (("fit blocks", fit), ("held-out blocks", ~fit)) if boxes is None else (("record", fit),)
+    fit = np.ones(rec.n, bool) if whole else fit_blocks(rec.t)
+    roles = (("record", fit),) if whole else (("fit blocks", fit), ("held-out blocks", ~fit))
     k = np.arange(rec.n)
     skills: dict[str, dict[str, dict[str, float]]] = {role: {} for role, _ in roles}
     samples: dict[str, int] = {}
-    notes: dict[str, str] = {}
     for q, (h, hs_s) in enumerate(zip(hs, horizons_s)):
-        # the black boxes predict within each block from that block's own past only, as they were
-        # fitted; a record too short to fit one has none (NaN, and the reason)
-        yb, yp = np.full(rec.n, np.nan), np.full(rec.n, np.nan)
-        if boxes is None:
-            try:
-                train = [bb.Series(rec.y[s], rec.u[s], rec.ts) for s in _runs(fit)]
-                pair = bb.fit(train, h * rec.ts), bb.fit(train, h * rec.ts, future=False)
-            except ValueError as e:
-                pair, notes[f"{hs_s * 1e3:g} ms"] = None, str(e)
-        else:
-            pair = boxes.get(hs_s)
-        if pair is not None:
-            for s in _runs(fit) + _runs(~fit):
-                yb[s] = pair[0].predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
-                yp[s] = pair[1].predict(bb.Series(rec.y[s], rec.u[s], rec.ts))
+        yb, yp = black_box.predictions[hs_s]
         stay = bb.stays_put(rec.y, h)
         cv = bb.constant_velocity(rec.y, h, rec.ts)
         origin_same_block = np.zeros(rec.n, bool)       # (a horizon is far shorter than a block)
@@ -203,4 +241,4 @@ def _skills(rec: Record, hs: list[int], horizons_s: tuple[float, ...], boxes: Bo
                 "black_box_past": bb.skill(rec.y, yp, stay, ok & np.isfinite(yp)) if np.isfinite(yp).any()
                 else float("nan"),
                 "constant_velocity": bb.skill(rec.y, cv, stay, ok)}
-    return RecordComparison(skills, tuple(horizons_s), samples, notes)
+    return RecordComparison(skills, tuple(horizons_s), samples, dict(black_box.missing))

@@ -164,6 +164,15 @@ class Effect(Parameterization):
         """A cheap refinement of the chosen start before the joint fit (none by default)."""
         return z
 
+    def gradient_points(self, prob: Problem, current: Mapping[str, float]) -> list[tuple[list[float], tuple[int, ...]]] | None:
+        """Where the search's gradient screen (:func:`~.pipeline.gradient_screen`) linearises the
+        effect: points ``z`` with the effect off, each with the coordinates differentiated there
+        (a friction's force at each smoothing speed, a pickup's cosine and sine parts at each
+        spectral peak). None: the entry is screened by a short fit only, as an effect the baseline
+        can absorb always is (its gradient from the calibrated baseline is what that baseline
+        already took)."""
+        return None
+
     def is_off(self, values: Mapping[str, float]) -> bool:
         """Whether fitted ``values`` leave the effect practically off: such a fit cannot be
         credited with a gain, which then comes from elsewhere (the baseline's recalibration, or
@@ -199,6 +208,10 @@ class _TimeConstant(Effect):
     def is_off(self, values: Mapping[str, float]) -> bool:
         """At most 20 us above the lower bound: 2 % of a 1 kHz sample."""
         return values[self.params[0]] <= self.coords[0].lo + 2e-5
+
+    def gradient_points(self, prob: Problem, current: Mapping[str, float]) -> list[tuple[list[float], tuple[int, ...]]]:
+        """From the time constant's lower bound (0, or a force lag's 50 us)."""
+        return [([max(self.coords[0].lo, self.off_values[self.params[0]])], (0,))]
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         lo = max(self.coords[0].lo, 2.5e-4)
@@ -241,6 +254,9 @@ class SensorNonlinearity(Effect):
     def is_off(self, values: Mapping[str, float]) -> bool:
         """Below 100 V/m²: a deviation under 0.3 um of position over the travel."""
         return abs(values["k_x2"]) < 100.0
+
+    def gradient_points(self, prob: Problem, current: Mapping[str, float]) -> list[tuple[list[float], tuple[int, ...]]]:
+        return [([0.0], (0,))]
 
     def starts(self, prob: Problem, current: Mapping[str, float]) -> list[list[float]]:
         return [[float(v)] for v in np.linspace(-6e4, 6e4, 24)]     # 0 excluded: the fit starts off it
@@ -448,6 +464,11 @@ class PeriodicDisturbance(Effect):
         peaks += spectral_peaks(prob.rec.y - sim["y"], prob.rec.ts, count=1)
         out = [[0.01 * ca, 0.01 * sa, p["f"]] for p in peaks for ca, sa in ((1, 0), (0, 1), (-1, 0), (0, -1))]
         return out or [[0.0, 0.0, 50.0]]
+
+    def gradient_points(self, prob: Problem, current: Mapping[str, float]) -> list[tuple[list[float], tuple[int, ...]]]:
+        """The cosine and sine parts at each frequency :meth:`starts` places (the residual's spectral peaks)."""
+        freqs = dict.fromkeys(z[2] for z in self.starts(prob, current))
+        return [([0.0, 0.0, f], (0, 1)) for f in freqs]
 
     def prefit(self, prob: Problem, current: Mapping[str, float], z: list[float]) -> list[float]:
         """Amplitude and phase first at the start's frequency: the loop's response to a small
@@ -658,6 +679,10 @@ class CoulombFriction(Effect):
         each smoothed over 0.05, 0.3 and 2 mm/s (a decade apart within the search's range)."""
         w = prob.base["m_k"] * prob.base["g"]
         return [[float(f) * w, v] for f in (0.001, 0.003, 0.01, 0.02, 0.05) for v in (5e-5, 3e-4, 2e-3)]
+
+    def gradient_points(self, prob: Problem, current: Mapping[str, float]) -> list[tuple[list[float], tuple[int, ...]]]:
+        """The force at each smoothing speed of :meth:`starts` (``v_c`` has no gradient where there is no force)."""
+        return [([0.0, v], (0,)) for v in (5e-5, 3e-4, 2e-3)]
 
     def rig_grid(self, values: Mapping[str, float], x: np.ndarray) -> list[list[float]]:
         """Every other of :meth:`starts`' sizes, 0.3 to 3 % of the weight (within the range), each over

@@ -21,7 +21,10 @@ import json
 import os
 import tempfile
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+
+from threadpoolctl import threadpool_limits
 
 from ..loop.fmu import ensure_fmu
 from ..records.load import Recording, load
@@ -30,7 +33,7 @@ from ..records.record import Record
 from ..rigs import Rig, load_rig
 from . import joint, pipeline, real_rig
 from .ce152_report import write_calibrated_fmu, write_report
-from .compare import compare
+from .compare import black_box_predictions, compare
 from .result import CalibratedFmu, DiagnosisResult, RecordRef, from_ce152, from_rig
 
 Say = Callable[[str], None]
@@ -126,11 +129,17 @@ def _ce152(r: Recording, *, effects, out, progress, workers, fmu, start, json_na
     names = None if effects is None or effects is True else ([] if effects is False else list(effects))
     fmu_in = ensure_fmu(fmu) if out is not None else None       # a missing FMU fails before the diagnosis
     say(f"diagnosing {rec.path}: {rec.n} samples, {rec.duration:.2f} s")
-    d = pipeline.run(rec, effects=names, workers=workers, progress=progress, start=start)
-    cmp = None
-    if d.verdict is not None:
-        say("comparing the final model's predictions with the black box and the naive predictors (5, 20, 50 ms)")
-        cmp = compare(rec, d.parameters, d.verdict.noise)
+    # The black boxes need no model: they are fitted on a thread of their own once the search has
+    # ended (no worker is forked after it), beside the verdict's estimates, which leave a core idle
+    # part of the time. One BLAS thread for both, as each stage asks for itself.
+    with threadpool_limits(limits=1), ThreadPoolExecutor(max_workers=1) as side:
+        boxes: list[Future] = []
+        d = pipeline.run(rec, effects=names, workers=workers, progress=progress, start=start,
+                         searched=lambda: boxes.append(side.submit(black_box_predictions, rec)))
+        cmp = None
+        if d.verdict is not None:
+            say("comparing the final model's predictions with the black box and the naive predictors (5, 20, 50 ms)")
+            cmp = compare(rec, d.parameters, d.verdict.noise, black_box=boxes[-1].result() if boxes else None)
     if out is None:
         return from_ce152(d, None, [], cmp)
     out = Path(out)

@@ -119,11 +119,11 @@ def difference_jacobian(fun: Residuals, lo: np.ndarray, hi: np.ndarray, rel_step
     return f, jac
 
 
-def gauss_newton_gain(J: np.ndarray, f: np.ndarray, z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
-    """The fall of the cost ½|f|² that the Gauss-Newton step of ``J`` promises from ``z`` (the
-    linearised residuals ``f + J·step`` at their least squares), with the coordinates whose step would
-    cross a bound held where they are. Near 0 at a fit's optimum; a fit that stopped short (an
-    approximate Jacobian) leaves more."""
+def gauss_newton_step(J: np.ndarray, f: np.ndarray, z: np.ndarray, lo: np.ndarray,
+                      hi: np.ndarray) -> tuple[np.ndarray, float]:
+    """The Gauss-Newton step of ``J`` from ``z`` (the linearised residuals ``f + J·step`` at their
+    least squares), with the coordinates whose step would cross a bound held where they are, and
+    the fall of the cost ½|f|² it promises."""
     free = np.ones(len(z), bool)
     for _ in range(len(z) + 1):
         step = np.zeros(len(z))
@@ -133,7 +133,14 @@ def gauss_newton_gain(J: np.ndarray, f: np.ndarray, z: np.ndarray, lo: np.ndarra
         if not out.any():
             break
         free &= ~out
-    return float(0.5 * (f @ f) - 0.5 * np.sum((f + J @ step) ** 2))
+    return step, float(0.5 * (f @ f) - 0.5 * np.sum((f + J @ step) ** 2))
+
+
+def gauss_newton_gain(J: np.ndarray, f: np.ndarray, z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """The fall of the cost ½|f|² that the Gauss-Newton step of ``J`` promises from ``z``
+    (:func:`gauss_newton_step`). Near 0 at a fit's optimum; a fit that stopped short (an
+    approximate Jacobian) leaves more."""
+    return gauss_newton_step(J, f, z, lo, hi)[1]
 
 
 def parameter_columns(fun: Callable[[dict[str, float]], np.ndarray], values: Mapping[str, float],
