@@ -419,13 +419,17 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu_out: Path | None =
         par = ", ".join(f"{k} = {_fmt(v)} {units[k]}" for k, v in c["parameters"].items())
         if c.get("stage") == "screen":
             par += " (screened: fit stopped early)"
+        elif c.get("stage") == "gradient screen":
+            par += " (one Gauss-Newton step: its gradient promised too little to fit)"
         lines.append(f"| {c['round']} | {c['effect']} | {par} | {c['rms_y']:.6f} | {c['rms_u']:.6f} | "
                      f"{-100 * c['held_out_gain']:+.1f} % | {c['lr_statistic']:.1f} | {c['threshold']:.1f} | "
                      f"{'**yes**' if c.get('selected') else ('yes' if c['accepted'] else 'no')} |")
     lines += ["", f"**Criterion.** {CRITERION}", "",
               "Every candidate is first screened: fitted with a few least-squares evaluations only. Those whose "
               "held-out likelihood ratio reaches half its threshold are fitted to convergence and judged again; "
-              "the others are marked *screened*.", ""]
+              "the others are marked *screened*. From the second round on, an effect the baseline cannot absorb "
+              "is screened by one Gauss-Newton step first, and fitted only where that step promises a quarter "
+              "of its threshold or more.", ""]
     rb = d.residual_before
     lines += ["## Residual of the calibrated baseline", "",
               f"- RMS: y {rb['rms_y']:.6f} MU, u {rb['rms_u']:.6f} MU; mean: y {rb['mean_y']:+.6f}, u {rb['mean_u']:+.6f}",
