@@ -452,3 +452,14 @@ def test_the_gradient_screen_passes_a_second_effect_that_is_there_and_stops_thos
         assert lr[e] < pipeline.GRADIENT_SHARE * thr[e], (e, lr[e], thr[e])
     for e in ("current_saturation", "force_exponent"):
         assert CATALOGUE[e].gradient_points(prob, first) is None
+
+
+def test_a_pickup_is_fitted_with_the_baseline_held(limited):
+    """A pickup moves the loop at its own frequency only, so its fit holds the baseline's parameters
+    (``Effect.with_baseline``, issue 22 item 7): the candidate's values keep the model's baseline to
+    the bit, and every other entry of the default catalogue refits it."""
+    rec, prob, hold, first = limited
+    res = pipeline.fit_candidate(prob, first, "periodic_disturbance", pipeline.SCREEN_NFEV)
+    assert all(res["values"][p] == first[p] for p in BASELINE.params), res["values"]
+    assert not CATALOGUE["periodic_disturbance"].with_baseline
+    assert all(CATALOGUE[e].with_baseline for e in CATALOGUE if e != "periodic_disturbance")

@@ -214,7 +214,8 @@ def _weighted(prob: Problem, values: Mapping[str, float]) -> Problem:
 
 def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, max_nfev: int = 60,
                   prepared: Mapping | None = None) -> dict:
-    """Fits one effect together with the recalibrated baseline on the fit blocks; effects
+    """Fits one effect together with the recalibrated baseline on the fit blocks (the baseline held
+    for an effect that does not take it, :attr:`~.effects.Effect.with_baseline`); effects
     selected in earlier rounds stay in the model (in ``current``) while this one is fitted.
     ``max_nfev``: the least-squares evaluations allowed (a screen takes :data:`SCREEN_NFEV`).
     ``prepared``: the ``prepared`` entry of this candidate's screen on the same problem and
@@ -259,7 +260,8 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
             if key is not None:
                 prefits[key] = list(best)
         # the start's values besides the fitted coordinates (say the force exponent's pivot) stay
-        f = fit(prob.with_base(best_vals), [BASELINE, eff], [BASELINE.to_coords(best_vals), best], max_nfev=max_nfev)
+        parts, z0 = ([BASELINE, eff], [BASELINE.to_coords(best_vals), best]) if eff.with_baseline else ([eff], [best])
+        f = fit(prob.with_base(best_vals), parts, z0, max_nfev=max_nfev)
         return {**cur, **best_vals, **f.values}, f
 
     # An effect the baseline can absorb (a D/A offset that shifted to mimic a current limit) may
@@ -552,7 +554,13 @@ def by_innovations_alone(prob: Problem, hold_mask: np.ndarray, current: Mapping[
     innovations. On the project emulator's no-effect records of seeds 4501 (a drifting force of
     0.19 % of the weight) and 4607 (10-bit converters, 1.4e-3 MU of sensor noise), whose free runs
     it did not improve (held-out gains under 0.05 %), a force exponent passed at LR +39.7 and +51.7
-    against 13.8 (n_F = 2.08 and 1.66), verdicts `explained in part` and `explained`."""
+    against 13.8 (n_F = 2.08 and 1.66), verdicts `explained in part` and `explained`.
+
+    One it accepts must show the effect's own signature as well (:meth:`~.effects.Effect.consistent`,
+    which :func:`judge` asks of what the free run accepts; since 2026-11-27): on a 4 s record of a
+    0.69 A limit under a 0.6 s square (tests/test_verdict_rules.py), a pickup fitted on the 6th
+    harmonic of the reference, rejected held out (LR 12.4 against 16.3), passed the innovations'
+    test and was selected; the reference's comb rejects it."""
     todo = [(e, entry, vals) for e, (entry, vals) in results.items()
             if entry.get("stage") == "fit" and not entry["accepted"] and entry["held_out_gain"] > 0
             and not entry.get("off") and not entry.get("inconsistent") and not CATALOGUE[e].absorbed_by]
@@ -563,12 +571,20 @@ def by_innovations_alone(prob: Problem, hold_mask: np.ndarray, current: Mapping[
     # runs in C, the GIL released)
     base_terms, *terms = thread_map(lambda v: innovation_terms(prob, v), [current, *(t[2] for t in todo), *own_off])
     terms, off_terms = terms[:len(todo)], terms[len(todo):]
-    for (e, entry, _), t, t_off in zip(todo, terms, off_terms):
+    for (e, entry, vals), t, t_off in zip(todo, terms, off_terms):
         test = min((innovations_test(t, null, hold_mask, len(CATALOGUE[e].params), ALPHA)
                     for null in (base_terms, t_off)), key=lambda r: r["lr_statistic"])
         entry["innovations"] = test
         if test["lr_statistic"] > test["threshold"]:
-            entry["accepted"], entry["accepted_by"] = True, "innovations"
+            # the effect's own signature holds here too (judge asks it of what the free run accepts):
+            # a pickup the innovations credit must still be steady and no harmonic of the reference
+            steady, evidence = CATALOGUE[e].consistent(prob, vals)
+            if evidence:
+                entry["consistency"] = evidence
+            if steady:
+                entry["accepted"], entry["accepted_by"] = True, "innovations"
+            else:
+                entry["inconsistent"] = True
         say(f"  {e} by the innovations' likelihood on the held-out blocks: LR {test['lr_statistic']:+.1f} vs "
             f"{test['threshold']:.1f} -> " + ("accepted" if entry["accepted"] else "rejected"))
 
