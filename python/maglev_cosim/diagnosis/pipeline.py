@@ -640,7 +640,9 @@ def gradient_screen(prob: Problem, current: dict[str, float],
     secants over :data:`GRADIENT_STEP` of their scales, one replay each. The step's fall of the
     cost on the fit blocks gives the in-sample likelihood ratio it promises (``N_eff·ln(J/J_GN)``,
     ``N_eff`` the effective samples of the residual as it stands); the step's values are judged on
-    the held-out blocks as any screen (:func:`judge`). For each effect: its best point's entry
+    the held-out blocks as any screen (:func:`judge`). The baseline's columns are in every
+    candidate's step, a pickup's too (whose fits hold the baseline): the promise can only grow by
+    them, and a promise errs best on the side of fitting. For each effect: its best point's entry
     (``stage``: ``gradient screen``, ``gradient``: the promised ratio), values and promised ratio.
 
     A short fit (the screen) costs 40 to 150 replays per candidate, its starts placed over the
