@@ -657,7 +657,7 @@ def gradient_screen(prob: Problem, current: dict[str, float],
     scales = BASELINE.uncertainty_scales()
     # every replay of the screen side by side: the baseline's columns, each point, each point's steps
     jobs: list[dict[str, float]] = []
-    plan: dict[str, list[tuple[list[float], tuple[int, ...], dict[str, float], int | None, list[int]]]] = {}
+    plan: dict[str, list[tuple[list[float], tuple[int, ...], int | None, list[int]]]] = {}
     for e, pts in points.items():
         eff = CATALOGUE[e]
         plan[e] = []
@@ -673,9 +673,9 @@ def gradient_screen(prob: Problem, current: dict[str, float],
                 zk[k] += GRADIENT_STEP * eff.coords[k].scale
                 ks.append(len(jobs))
                 jobs.append(eff.start_values(zk, prob, current))
-            plan[e].append((z, free, at, k0, ks))
+            plan[e].append((z, free, k0, ks))
     got = thread_map(lambda v: residuals(prob, v), jobs)
-    J_b = parameter_columns(lambda v: residuals(prob, v), current, scales, r0, map_fn=lambda f, xs: thread_map(f, xs))
+    J_b = parameter_columns(lambda v: residuals(prob, v), current, scales, r0, map_fn=thread_map)
     zb = np.array([current[c.name] / c.scale for c in BASELINE.coords])
     lob = np.array([c.lo / c.scale for c in BASELINE.coords])
     hib = np.array([c.hi / c.scale for c in BASELINE.coords])
@@ -683,7 +683,7 @@ def gradient_screen(prob: Problem, current: dict[str, float],
     for e, rows in plan.items():
         eff = CATALOGUE[e]
         best = None
-        for z, free, at, k0, ks in rows:
+        for z, free, k0, ks in rows:
             f = r0 if k0 is None else got[k0]
             J = np.column_stack([J_b, *((got[k] - f) / GRADIENT_STEP for k in ks)])
             ze = np.array([z[k] / eff.coords[k].scale for k in free])
@@ -693,8 +693,8 @@ def gradient_screen(prob: Problem, current: dict[str, float],
             j1 = max(float(f @ f) - 2 * gain, 0.0) / len(f)
             lr = n_eff * math.log(j0 / j1) if j1 > 0 and j0 > 0 else math.inf
             if best is None or lr > best[0]:
-                best = (lr, z, free, at, step)
-        lr, z, free, at, step = best
+                best = (lr, z, free, step)
+        lr, z, free, step = best
         zn = list(z)
         for j, k in enumerate(free):
             zn[k] += step[len(zb) + j] * eff.coords[k].scale
