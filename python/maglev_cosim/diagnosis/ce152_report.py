@@ -417,6 +417,7 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu_out: Path | None =
               "threshold | accepted |", "|---|---|---|---|---|---|---|---|---|"]
     for c in d.candidates:
         par = ", ".join(f"{k} = {_fmt(v)} {units[k]}" for k, v in c["parameters"].items())
+        par += "".join(f" ({k} refitted beside it to {_fmt(v)} {units[k]})" for k, v in c.get("joint", {}).items())
         if c.get("stage") == "screen":
             par += " (screened: fit stopped early)"
         elif c.get("stage") == "gradient screen":

@@ -176,6 +176,11 @@ class Effect(Parameterization):
         already took)."""
         return None
 
+    def joint(self, current: Mapping[str, float]) -> list[Effect]:
+        """Effects of the model as it stands (``current``) that a candidate's fit frees beside its
+        own coordinates (none by default; a lag or delay frees its twin, :meth:`_TimeConstant.loop_twin`)."""
+        return []
+
     def is_off(self, values: Mapping[str, float]) -> bool:
         """Whether fitted ``values`` leave the effect practically off: such a fit cannot be
         credited with a gain, which then comes from elsewhere (the baseline's recalibration, or
@@ -211,6 +216,36 @@ class _TimeConstant(Effect):
     def is_off(self, values: Mapping[str, float]) -> bool:
         """At most 20 us above the lower bound: 2 % of a 1 kHz sample."""
         return values[self.params[0]] <= self.coords[0].lo + 2e-5
+
+    def loop_twin(self, current: Mapping[str, float]) -> _TimeConstant | None:
+        """The time constant of the model as it stands (``current``) that this one trades against:
+        of the actuator-to-force path's lags and delay (:data:`LOOP_LAGS`), another that is on, the
+        largest. A first-order lag of ``T`` turns the loop's phase by ``atan(ωT)``, a delay by
+        ``ωT``: within the loop's band the two differ by under 1 % up to ``ω = 1/(6T)``, so a model
+        that took a lag first has taken a small delay beside it into that lag (the independent
+        emulator's 0.3 ms computation delay beside a 3 ms amplifier lag: ``T_a`` 3.43 ms), and the
+        delay alone cannot be added from there. None outside that path, or where no twin is on."""
+        if self.name not in LOOP_LAGS:
+            return None
+        on = [CATALOGUE[e] for e in LOOP_LAGS if e != self.name and e in CATALOGUE and CATALOGUE[e].params[0] in current
+              and not CATALOGUE[e].is_off(current)]
+        return max(on, key=lambda e: current[e.params[0]], default=None)
+
+    def start_values(self, z: Sequence[float], prob: Problem, current: Mapping[str, float]) -> dict[str, float]:
+        """The start's time constant, and its twin (:meth:`loop_twin`) shortened by as much, down to its
+        lower bound: the loop's total lag as the model had it, split anew. (The gradient screen's
+        secant then runs along the split too.)"""
+        vals = {**current, **self.to_params(z)}
+        tw = self.loop_twin(current)
+        if tw is not None:
+            p = tw.params[0]
+            vals[p] = max(float(current[p]) - float(z[0]), tw.coords[0].lo)
+        return vals
+
+    def joint(self, current: Mapping[str, float]) -> list[Effect]:
+        """The twin (:meth:`loop_twin`), fitted beside this time constant: the split is the fit's to make."""
+        tw = self.loop_twin(current)
+        return [] if tw is None else [tw]
 
     def gradient_points(self, prob: Problem, current: Mapping[str, float]) -> list[tuple[list[float], tuple[int, ...]]]:
         """From the time constant's lower bound (0, or a force lag's 50 us)."""
@@ -879,6 +914,11 @@ class ForceGainDrift(Effect):
         k = float(values[gain]) * (1.0 + float(values.get("kappa_c", 0.0)) * mid) / max(1.0 + float(z[0]) * mid, 1e-3)
         return {"kappa_c": float(z[0]), gain: k}
 
+
+#: The lags and the delay of the path from the D/A to the force: twins within the loop's band
+#: (:meth:`_TimeConstant.loop_twin`). A sensor lag also turns the loop's phase, but it shows in the recorded
+#: reading, which a lag before the ball does not.
+LOOP_LAGS = ("amplifier_lag", "force_lag", "delay")
 
 CATALOGUE: dict[str, Effect] = {e.name: e for e in (
     _TimeConstant("amplifier_lag", 0.0, "actuator", "the amplifier's first-order lag T_a (Eq. 2), neglected in Eq. 5",

@@ -28,7 +28,7 @@ from threadpoolctl import threadpool_limits
 
 from ..records.record import Record
 from .acceptance import ALPHA, CRITERION, MIN_GAIN, accept, fit_blocks
-from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, twin_warnings
+from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, Effect, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .jacobian import gauss_newton_step, parameter_columns
 from .metrics import chi2_quantile, nrmse_fit
@@ -261,6 +261,9 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
                 prefits[key] = list(best)
         # the start's values besides the fitted coordinates (say the force exponent's pivot) stay
         parts, z0 = ([BASELINE, eff], [BASELINE.to_coords(best_vals), best]) if eff.with_baseline else ([eff], [best])
+        # what the effect trades against in the model as it stands is freed beside it (a lag's twin)
+        extra = eff.joint(cur)
+        parts, z0 = [*parts, *extra], [*z0, *(p.to_coords(best_vals) for p in extra)]
         f = fit(prob.with_base(best_vals), parts, z0, max_nfev=max_nfev)
         return {**cur, **best_vals, **f.values}, f
 
@@ -292,8 +295,13 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
     # converged: every fit ended by a tolerance within max_nfev, so that any larger max_nfev ends the
     # same (the same iterations): a screen that converged is the fit to convergence
     return {"effect": effect_name, "values": values, "fit_cost": f.cost, "nfev": nfev, "retried": retried,
-            "converged": converged, "cpu_s": time.process_time() - t0,
+            "converged": converged, "cpu_s": time.process_time() - t0, "joint": _joint(eff, current, values),
             "prepared": {"starts": starts, "prefit": prefits}}
+
+
+def _joint(eff: Effect, current: Mapping[str, float], values: Mapping[str, float]) -> dict[str, float]:
+    """The values of what ``eff``'s fit freed beside it (:meth:`~.effects.Effect.joint`) where they moved."""
+    return {p: float(values[p]) for e in eff.joint(current) for p in e.params if values[p] != current[p]}
 
 
 def _worker(args: tuple[Problem, dict[str, float], str, int, Mapping | None]) -> dict:
@@ -415,6 +423,8 @@ def judge(prob: Problem, hold_mask: np.ndarray, hold_before: float, res: dict, r
             ok = False
             stats = {**stats, "inconsistent": True}
     errs = rms(prob.rec, prob.free_run(vals))
+    if res.get("joint"):
+        stats = {**stats, "joint": dict(res["joint"])}
     entry = {"effect": res["effect"], "round": rnd, "parameters": {p: vals[p] for p in eff.params}, **errs,
              "accepted": ok, "held_out_cost_before": hold_before, "held_out_cost_after": hold_after, **stats,
              "calibrated": {n: vals[n] for n in BASELINE.params}}
@@ -701,7 +711,8 @@ def gradient_screen(prob: Problem, current: dict[str, float],
         vals = eff.start_values(zn, prob, current)
         for j, c in enumerate(BASELINE.coords):
             vals[c.name] = float(np.clip(vals[c.name] + step[j] * c.scale, c.lo, c.hi))
-        entry, vals = judge(prob, hold_mask, hold_before, {"effect": e, "values": vals}, rnd, fit_before)
+        entry, vals = judge(prob, hold_mask, hold_before, {"effect": e, "values": vals,
+                                                           "joint": _joint(eff, current, vals)}, rnd, fit_before)
         entry["stage"] = "gradient screen"
         entry["gradient"] = {"lr_promised": float(lr), "share": GRADIENT_SHARE, "n_eff": float(n_eff)}
         out[e] = (entry, vals, float(lr))
@@ -711,6 +722,7 @@ def gradient_screen(prob: Problem, current: dict[str, float],
 def _judged(entry: Mapping, stage: str) -> str:
     """One line of the search's progress: a candidate's fit and its judgement."""
     return (f"{entry['effect']} ({stage}): " + ", ".join(f"{p} = {v:.4g}" for p, v in entry["parameters"].items())
+            + "".join(f" ({p} refitted to {v:.4g})" for p, v in entry.get("joint", {}).items())
             + f"; held-out cost change {-100 * entry['held_out_gain']:+.1f} % "
             + f"(LR {entry['lr_statistic']:.1f} vs {entry['threshold']:.1f}"
             + (f"; on the fit blocks {entry['fit_lr_statistic']:.1f}" if "fit_lr_statistic" in entry else "")
@@ -1069,9 +1081,30 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
         # times the true model's 20 ms error.
         unc_free = _uncertainties(prob, current, selected, free)
         if not gone(free, unc_free):
-            say(f"the k-step fit left {', '.join(gone(values, unc))} off or within {MIN_EFFECT_SIGMA:g}σ of off, "
-                "the free run's fit does not: the free run's values are kept")
-            values, unc = free, unc_free
+            dropped = gone(values, unc)
+            kept = True
+            if KSTEP_OFF_LEAVES and prob.noise is None:
+                # Only where the free run needs them: refitted without them, a free run that still
+                # follows the record (FREE_RUN_MIN_FIT) lets them go
+                saved = (list(selected), dict(current))
+                for e in dropped:
+                    selected.remove(e)
+                    current = turned_off(prob, e, current)
+                v2, u2, _ = _refit(prob, current, selected, say)
+                fit_y = nrmse_fit(prob.rec.y, prob.free_run(v2)["y"])
+                if fit_y >= FREE_RUN_MIN_FIT:
+                    say(f"the k-step fit left {', '.join(dropped)} off or within {MIN_EFFECT_SIGMA:g}σ of off, and "
+                        f"without {'them' if len(dropped) > 1 else 'it'} the free run still follows y by {fit_y:.1f} % "
+                        f"(at least {FREE_RUN_MIN_FIT:.0f} %): {'they leave' if len(dropped) > 1 else 'it leaves'} the model")
+                    values, unc, kept = v2, u2, False
+                else:
+                    selected[:] = saved[0]
+                    current = saved[1]
+                    say(f"without {', '.join(dropped)} the free run follows y by only {fit_y:.1f} %")
+            if kept:
+                say(f"the k-step fit left {', '.join(dropped)} off or within {MIN_EFFECT_SIGMA:g}σ of off, "
+                    "the free run's fit does not: the free run's values are kept")
+                values, unc = free, unc_free
     dropped = off(values)
     if dropped:
         say(f"the refit turned {', '.join(dropped)} off: refitting without it")
@@ -1134,6 +1167,11 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
     say("estimating parameter uncertainties")
     kept_free = free if free is not None and values != free else None
     return values, _uncertainties(prob, current, selected, values), kept_free
+
+
+#: Whether an effect that the k-step fit of a free-run refit takes to (or within 3σ of) off leaves
+#: the model where the free run refitted without it still follows the record (:data:`FREE_RUN_MIN_FIT`).
+KSTEP_OFF_LEAVES = True
 
 
 #: The share by which the k-step prediction's cost must fall for :func:`_kstep_ridge` to take its
