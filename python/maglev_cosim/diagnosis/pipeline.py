@@ -1052,7 +1052,8 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
     is updated in place) and the rest is refitted without it; so does an effect whose parameter
     lies within :data:`MIN_EFFECT_SIGMA` standard errors of off. Where the k-step fit that ends a
     free-run refit (:func:`_kstep_ridge`, :func:`_kstep_screened`) took an effect there and the free
-    run's fit did not, the free run's values are kept instead."""
+    run's fit did not, the effect leaves where the free run refitted without it still follows ``y``
+    by :data:`FREE_RUN_MIN_FIT` (:data:`KSTEP_OFF_LEAVES`); elsewhere the free run's values are kept."""
     def without(effects: Sequence[str]) -> tuple[dict, dict]:
         nonlocal current
         for e in effects:
@@ -1086,11 +1087,8 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
             if KSTEP_OFF_LEAVES and prob.noise is None:
                 # Only where the free run needs them: refitted without them, a free run that still
                 # follows the record (FREE_RUN_MIN_FIT) lets them go
-                saved = (list(selected), dict(current))
-                for e in dropped:
-                    selected.remove(e)
-                    current = turned_off(prob, e, current)
-                v2, u2, _ = _refit(prob, current, selected, say)
+                saved = (list(selected), current)
+                v2, u2 = without(dropped)
                 fit_y = nrmse_fit(prob.rec.y, prob.free_run(v2)["y"])
                 if fit_y >= FREE_RUN_MIN_FIT:
                     say(f"the k-step fit left {', '.join(dropped)} off or within {MIN_EFFECT_SIGMA:g}σ of off, and "
@@ -1098,8 +1096,7 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
                         f"(at least {FREE_RUN_MIN_FIT:.0f} %): {'they leave' if len(dropped) > 1 else 'it leaves'} the model")
                     values, unc, kept = v2, u2, False
                 else:
-                    selected[:] = saved[0]
-                    current = saved[1]
+                    selected[:], current = saved
                     say(f"without {', '.join(dropped)} the free run follows y by only {fit_y:.1f} %")
             if kept:
                 say(f"the k-step fit left {', '.join(dropped)} off or within {MIN_EFFECT_SIGMA:g}σ of off, "
