@@ -374,6 +374,24 @@ def test_a_faint_effect_leaves_the_final_model(monkeypatch):
     pipeline.refit(Prob(), {"k_x2": -851.0}, selected, lambda s: None)
     assert selected == [] and calls == [["sensor_nonlinearity"], []]
 
+    # two that trade against each other (a lag and its twin): each stands within 3σ of off beside the
+    # other; the faintest leaves first, and the other, refitted alone, stands far from off and stays
+    def twin_refit(prob, current, selected, say):
+        calls.append(list(selected))
+        values = {"T_a": current.get("T_a", 2.4e-3), "T_F": current.get("T_F", 2.6e-3)}
+        both = {"amplifier_lag", "force_lag"} <= set(selected)
+        return values, ({"T_a": 1e-3, "T_F": 9.6e-4} if both else {"T_a": 1e-4, "T_F": 1e-4}), None
+
+    monkeypatch.setattr(pipeline, "_refit", twin_refit)
+    calls.clear()
+    said.clear()
+    selected = ["amplifier_lag", "force_lag"]
+    values, _ = pipeline.refit(SimpleNamespace(base={"T_a": 0.0, "T_F": 5e-5}), {"T_a": 2.4e-3, "T_F": 2.6e-3},
+                               selected, said.append)
+    assert selected == ["force_lag"] and calls == [["amplifier_lag", "force_lag"], ["force_lag"]], (selected, calls)
+    assert values["T_a"] == 0.0 and values["T_F"] == 2.6e-3
+    assert "amplifier_lag within 2.4σ" in said[0] and "force_lag within 2.7σ" in said[0], said
+
 
 def test_the_test_on_likelihoods_takes_their_difference_and_survives_huge_ones():
     # a filter that the record's model fits badly: mean NLLs of hundreds, whose exp overflows (seed

@@ -1106,11 +1106,18 @@ def refit(prob: Problem, current: dict[str, float], selected: list[str], say: Sa
     if dropped:
         say(f"the refit turned {', '.join(dropped)} off: refitting without it")
         values, unc = without(dropped)
+    # One at a time, the faintest first, each refit judged again: two effects that trade against each
+    # other (a lag and its twin, split by the search) each stand within a few σ of off beside the
+    # other, though the pair is far from it. On the emulator's slewing amplifier of test_diagnose
+    # (seed 5) an amplifier lag and a force lag split from it stood at 2.4σ and 2.7σ; both left, and
+    # the baseline refitted on the whole record followed u 0.04 % worse than the calibrated one.
     weak = faint(values, unc)
-    if weak:
-        say("the refit leaves " + ", ".join(f"{e} within {z:.1f}σ of off" for e, z in weak)
-            + f" (at least {MIN_EFFECT_SIGMA:g}σ needed): refitting without it")
-        values, unc = without([e for e, _ in weak])
+    while weak:
+        e, z = min(weak, key=lambda t: t[1])
+        say("the refit leaves " + ", ".join(f"{w} within {zw:.1f}σ of off" for w, zw in weak)
+            + f" (at least {MIN_EFFECT_SIGMA:g}σ needed): refitting without {e}, the faintest")
+        values, unc = without([e])
+        weak = faint(values, unc)
     return values, unc
 
 
