@@ -227,8 +227,8 @@ class _TimeConstant(Effect):
         delay alone cannot be added from there. None outside that path, or where no twin is on."""
         if self.name not in LOOP_LAGS:
             return None
-        on = [CATALOGUE[e] for e in LOOP_LAGS if e != self.name and e in CATALOGUE and CATALOGUE[e].params[0] in current
-              and not CATALOGUE[e].is_off(current)]
+        on = [t for t in (CATALOGUE[e] for e in LOOP_LAGS if e != self.name)
+              if t.params[0] in current and not t.is_off(current)]
         return max(on, key=lambda e: current[e.params[0]], default=None)
 
     def start_values(self, z: Sequence[float], prob: Problem, current: Mapping[str, float]) -> dict[str, float]:
