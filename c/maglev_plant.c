@@ -1109,6 +1109,30 @@ static void budget_message(const MaglevPlant *m, double h, const Plan *plan, cha
          "steps", h, total, pieces, MAGLEV_STEP_BUDGET, what);
 }
 
+/* What stepping changes (besides the caches, which depend on h, T_F and T_a alone, and the work statistic):
+ * a failed step puts it back. A copy of these instead of the whole plant (784 bytes with its parameters),
+ * since every step of a replay takes one. */
+typedef struct {
+    double time, x, v, i, F, F2, xs;
+    int contact;
+} StepState;
+
+static StepState step_state(const MaglevPlant *m) {
+    StepState s = {m->time, m->x, m->v, m->i, m->F, m->F2, m->xs, m->contact};
+    return s;
+}
+
+static void restore_step_state(MaglevPlant *m, const StepState *s) {
+    m->time = s->time;
+    m->x = s->x;
+    m->v = s->v;
+    m->i = s->i;
+    m->F = s->F;
+    m->F2 = s->F2;
+    m->xs = s->xs;
+    m->contact = s->contact;
+}
+
 int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, size_t len) {
     (void)a;
     m->work = 0;
@@ -1145,9 +1169,9 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
         }
     }
     /* a failed step leaves the plant as it was (the history is not touched by stepping) */
-    MaglevPlant before = *m;
+    const StepState before = step_state(m);
     if (step_pieces(m, t_end, &work, NULL)) {
-        *m = before;
+        restore_step_state(m, &before);
         m->work = work;
         fail(msg, len, "a step of %g s needs more than %ld RK4 evaluations, most of them finding impacts at the "
              "stops; take shorter communication steps", h, MAGLEV_WORK_MAX);
@@ -1159,7 +1183,7 @@ int maglev_step(MaglevPlant *m, double h, const MaglevAllocator *a, char *msg, s
     if (!isfinite(m->x) || !isfinite(m->xs) || !isfinite(m->v) || !isfinite(m->i) || !isfinite(m->F) ||
         !isfinite(m->F2)) {
         double x = m->x, v = m->v, i = m->i;
-        *m = before;
+        restore_step_state(m, &before);
         m->work = work;
         return fail(msg, len, "state became non-finite at t = %g (x = %g, v = %g, i = %g); the state before "
                     "the step is kept", t_end, x, v, i);
