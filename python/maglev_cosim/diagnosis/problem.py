@@ -218,10 +218,12 @@ def _values(parts: Sequence[Parameterization], z: np.ndarray) -> dict[str, float
 
 
 def fit(prob: Problem | Sequence[Problem], parts: Sequence[Parameterization], z0: Sequence[Sequence[float]], *,
-        max_nfev: int = 60) -> Fit:
+        max_nfev: int = 60, tol: float = 1e-6) -> Fit:
     """Least squares (trust-region reflective) over the coordinates of ``parts``, started at
     ``z0`` (one coordinate list per part), in scaled coordinates; on several problems (records
-    calibrated together) over all their residuals (:func:`stacked`)."""
+    calibrated together) over all their residuals (:func:`stacked`). ``tol``: the relative fall of
+    the cost (``ftol``) and step of the scaled coordinates (``xtol``) at which it ends (a candidate
+    effect's fits take :data:`~.pipeline.CANDIDATE_TOL`)."""
     coords = [c for part in parts for c in part.coords]
     sc = np.array([c.scale for c in coords])
     lo = np.array([c.lo for c in coords]) / sc
@@ -236,5 +238,5 @@ def fit(prob: Problem | Sequence[Problem], parts: Sequence[Parameterization], z0
     with ThreadPoolExecutor(max_workers=THREADS) as ex:
         par = {"workers": ex.map} if _LSQ_WORKERS and THREADS > 1 else {}
         r = least_squares(fun, zs, bounds=(lo, hi), diff_step=1e-6, x_scale=1.0, max_nfev=max_nfev,
-                          ftol=1e-6, xtol=1e-6, gtol=1e-10, **par)
+                          ftol=tol, xtol=tol, gtol=1e-10, **par)
     return Fit(_values(parts, r.x * sc), float(np.mean(r.fun**2)), int(r.nfev), bool(r.status != 0))
