@@ -32,8 +32,8 @@ from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, Effect, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .jacobian import gauss_newton_step, parameter_columns
 from .metrics import chi2_quantile, nrmse_fit
-from .problem import (Fit, Parameterization, Problem, cost_on, fit, on_fit_steps, one_thread, residuals, stacked,
-                      thread_map)
+from .problem import (FIT_TOL, Fit, Parameterization, Problem, cost_on, fit, on_fit_steps, one_thread, residuals,
+                      stacked, thread_map)
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
 from .residual import analyse_residual, check_controller, effective_samples, noise_floor
 from .result import Json
@@ -321,8 +321,8 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
 #: rivals whose fits differ by little) are made as before :data:`CANDIDATE_TOL`. Without it, on the
 #: project emulator's force lag of benchmark seed 6100, the delay (its twin) was chosen.
 REFINE = True
-#: The tolerance of those fits (:data:`REFINE`).
-REFINE_TOL = 1e-6
+#: The tolerance of those fits (:data:`REFINE`): the model's own (:data:`~.problem.FIT_TOL`).
+REFINE_TOL = FIT_TOL
 
 
 def _joint(eff: Effect, current: Mapping[str, float], values: Mapping[str, float]) -> dict[str, float]:

@@ -217,8 +217,12 @@ def _values(parts: Sequence[Parameterization], z: np.ndarray) -> dict[str, float
     return out
 
 
+#: The least-squares tolerances (``ftol`` and ``xtol``) of the model's own fits (:func:`fit`).
+FIT_TOL = 1e-6
+
+
 def fit(prob: Problem | Sequence[Problem], parts: Sequence[Parameterization], z0: Sequence[Sequence[float]], *,
-        max_nfev: int = 60, tol: float = 1e-6) -> Fit:
+        max_nfev: int = 60, tol: float = FIT_TOL) -> Fit:
     """Least squares (trust-region reflective) over the coordinates of ``parts``, started at
     ``z0`` (one coordinate list per part), in scaled coordinates; on several problems (records
     calibrated together) over all their residuals (:func:`stacked`). ``tol``: the relative fall of
