@@ -534,8 +534,11 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                    double u_hold, int n_h, const int *horizons, const unsigned char *starts, double *y_pred,
                    double *u_pred, double *i_pred, double *innov, double *innov_var, double *d_est, double *d_sd,
                    char *msg, size_t len) {
-    MaglevPlant m, nom, pert, cur; /* the plant, and scratch copies: the step, its Jacobian's, a prediction's */
-    memset(&nom.hist, 0, sizeof nom.hist);
+    /* the plant (*pm), and scratch copies: the step (*pn), its Jacobian's, a prediction's. The step is taken
+     * on *pn and the two pointers swapped: copying the 784-byte plants back (m = nom) was half of this
+     * function's own time under perf */
+    MaglevPlant plants[2], pert, cur, *pm = &plants[0], *pn = &plants[1];
+    memset(&pn->hist, 0, sizeof pn->hist);
     memset(&pert.hist, 0, sizeof pert.hist);
     memset(&cur.hist, 0, sizeof cur.hist);
     if ((ctl && ctl_check(ctl, u_hold, msg, len)) || filter_check(f, msg, len) || correction_check(corr, msg, len))
@@ -576,22 +579,22 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
         if (d_est) d_est[k] = NAN;
         if (d_sd) d_sd[k] = NAN;
     }
-    if (setup(&m, params, u_hold, msg, len)) {
-        maglev_release(&m, &maglev_std_allocator);
+    if (setup(pm, params, u_hold, msg, len)) {
+        maglev_release(pm, &maglev_std_allocator);
         return -1;
     }
-    const double mk = maglev_param(&m, VR_m_k), mg = mk * maglev_param(&m, VR_g);
+    const double mk = maglev_param(pm, VR_m_k), mg = mk * maglev_param(pm, VR_g);
     const double a = exp(-6.283185307179586 * f->f_force * ts), r2 = f->r_sensor * f->r_sensor;
-    const int current_state = maglev_param(&m, VR_T_a) > 0 || maglev_param(&m, VR_R_c) > 0;
-    const int sensor_lag = maglev_param(&m, VR_T_y) > 0, ys = sensor_lag ? 5 : 0; /* the state y reads */
+    const int current_state = maglev_param(pm, VR_T_a) > 0 || maglev_param(pm, VR_R_c) > 0;
+    const int sensor_lag = maglev_param(pm, VR_T_y) > 0, ys = sensor_lag ? 5 : 0; /* the state y reads */
     const int drive_by_current = !ctl && i_meas && current_state && f->current_input;
     /* the coil's free run (coil_free): the current takes no part in the reading's updates */
     const int coil_free = !i_meas && current_state && f->coil_free;
     const int coloured = f->f_sensor > 0;
     const double b = coloured ? exp(-6.283185307179586 * f->f_sensor * ts) : 0.0;
     const double rc2 = coloured ? f->r_coloured * f->r_coloured : 0.0;
-    const int active[NS] = {1, 1, current_state, maglev_param(&m, VR_T_F) > 0, 1, sensor_lag, coloured,
-                            maglev_param(&m, VR_beta_F) > 0};
+    const int active[NS] = {1, 1, current_state, maglev_param(pm, VR_T_F) > 0, 1, sensor_lag, coloured,
+                            maglev_param(pm, VR_beta_F) > 0};
     int idx[NS], na = 0; /* the active states: the covariance's products run over them alone */
     for (int j = 0; j < NS; j++)
         if (active[j]) idx[na++] = j;
@@ -600,8 +603,8 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
     const double q_extra[NS] = {0, 0, 1e-8, 1e-12 * mg * mg, 0, 1e-16, 0, 1e-12 * mg * mg};
     double P[NS][NS] = {{0}};
     double dv_dx;
-    maglev_sensor_volts(&m, m.x, &dv_dx);
-    double slope = maglev_param(&m, VR_k_AD) * dv_dx;
+    maglev_sensor_volts(pm, pm->x, &dv_dx);
+    double slope = maglev_param(pm, VR_k_AD) * dv_dx;
     P[0][0] = r2 / (slope * slope) + 1e-10;
     P[1][1] = 1e-6;
     P[2][2] = active[2] ? 1e-4 : 0;
@@ -614,32 +617,32 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
     double d = 0.0, c = 0.0, A[NS][NS] = {{0}};
     CtlState cs;
     if (ctl) {
-        const double x0[3] = {m.x, m.v, maglev_get(&m, VR_i)};
+        const double x0[3] = {pm->x, pm->v, maglev_get(pm, VR_i)};
         ctl_start(ctl, &cs, u_hold, x0, n ? w[0] : 0.0);
     }
     int rc = 0;
     for (size_t k = 0; k < n && rc == 0; k++) {
-        m.time = (double)k * ts;
+        pm->time = (double)k * ts;
         /* measurement update with y[k] */
-        double yhat = maglev_get(&m, VR_y);
+        double yhat = maglev_get(pm, VR_y);
         if (fabs(yhat) < 1.0 && fabs(y[k]) < 1.0) {
-            double h = 1e-7, H = (maglev_reading(&m, m.xs + h, m.time) - maglev_reading(&m, m.xs - h, m.time)) / (2 * h);
+            double h = 1e-7, H = (maglev_reading(pm, pm->xs + h, pm->time) - maglev_reading(pm, pm->xs - h, pm->time)) / (2 * h);
             double hc = coloured ? 1.0 : 0.0, e = y[k] - yhat - c;
             if (innov) innov[k] = e;
             if (innov_var) innov_var[k] = H * H * P[ys][ys] + 2.0 * H * hc * P[ys][6] + hc * hc * P[6][6] + r2;
-            scalar_update(&m, &d, &c, P, idx, na, ys, H, 6, hc, e, r2);
+            scalar_update(pm, &d, &c, P, idx, na, ys, H, 6, hc, e, r2);
         }
         /* measurement update with the measured current (a state of its own only with a lag or a
          * voltage drive; otherwise it is a function of the input and carries nothing new) */
         if (i_meas && active[2])
-            scalar_update(&m, &d, &c, P, idx, na, 2, 1.0, 6, 0.0, i_meas[k] - m.i, r_current * r_current);
+            scalar_update(pm, &d, &c, P, idx, na, 2, 1.0, 6, 0.0, i_meas[k] - pm->i, r_current * r_current);
         /* the random force after both updates: its trajectory is how a drift shows (a force the
          * mechanics lacks, or a gain that changes during the run) */
         if (d_est) d_est[k] = d;
         if (d_sd) d_sd[k] = sqrt(P[4][4]);
         /* the controller, on the measured reading (and current, or the filter's): its state for the
          * predictions */
-        if (ctl) (void)ctl_step(ctl, &cs, w[k], y[k], i_meas ? i_meas[k] : maglev_get(&m, VR_i));
+        if (ctl) (void)ctl_step(ctl, &cs, w[k], y[k], i_meas ? i_meas[k] : maglev_get(pm, VR_i));
         /* prediction from here */
         /* (a single horizon predicts only from where it ends inside the record; several horizons
          * each end where the record allows, the same predictions as one call per horizon) */
@@ -649,7 +652,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             k + (size_t)h_run < n) {
             CtlState pp = cs;
             double dd = d, cc = c, uin = u[k], yj = 0.0;
-            if (reuse_plant(&cur, &m, msg, len)) {
+            if (reuse_plant(&cur, pm, msg, len)) {
                 rc = -1;
                 break;
             }
@@ -684,17 +687,17 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
          * changes slowly along a levitating record, so it is refreshed every JAC_EVERY samples
          * (and whenever the ball touches a stop), which makes the filter about three times cheaper */
         double s0[NS], s1[NS];
-        get_state(&m, d, c, s0);
-        if (reuse_plant(&nom, &m, msg, len)) {
+        get_state(pm, d, c, s0);
+        if (reuse_plant(pn, pm, msg, len)) {
             rc = -1;
             break;
         }
-        if (advance(&nom, u[k], d + maglev_correction_force(corr, m.x, m.v), ts, msg, len)) {
+        if (advance(pn, u[k], d + maglev_correction_force(corr, pm->x, pm->v), ts, msg, len)) {
             rc = -1;
             break;
         }
-        get_state(&nom, a * d, b * c, s1);
-        int refresh = k % JAC_EVERY == 0 || nom.contact != CONTACT_NONE || m.contact != CONTACT_NONE;
+        get_state(pn, a * d, b * c, s1);
+        int refresh = k % JAC_EVERY == 0 || pn->contact != CONTACT_NONE || pm->contact != CONTACT_NONE;
         for (int j = 0; j < NS && rc == 0 && refresh; j++) {
             if (!active[j]) continue;
             if (j == 4) { /* d enters the mechanics linearly (advance), and decays by a */
@@ -710,7 +713,7 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             double sp[NS];
             memcpy(sp, s0, sizeof sp);
             sp[j] += delta[j];
-            if (reuse_plant(&pert, &m, msg, len)) {
+            if (reuse_plant(&pert, pm, msg, len)) {
                 rc = -1;
                 break;
             }
@@ -724,10 +727,10 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
             for (int i = 0; i < NS; i++)
                 if (i != 4 && i != 6) A[i][j] = (s2[i] - s1[i]) / delta[j];
         }
-        {   /* the step taken: nom is the plant now, and m's buffers its scratch for the next copy */
-            MaglevPlant was = m;
-            m = nom;
-            nom = was;
+        {   /* the step taken: *pn is the plant now, and *pm's buffers its scratch for the next copy */
+            MaglevPlant *was = pm;
+            pm = pn;
+            pn = was;
         }
         d = a * d;
         c = b * c;
@@ -748,8 +751,8 @@ static int predict(const double *params, const MaglevController *ctl, const Magl
                 rc = -1;
             }
     }
-    maglev_release(&m, &maglev_std_allocator);
-    maglev_release(&nom, &maglev_std_allocator);
+    maglev_release(pm, &maglev_std_allocator);
+    maglev_release(pn, &maglev_std_allocator);
     maglev_release(&pert, &maglev_std_allocator);
     maglev_release(&cur, &maglev_std_allocator);
     return rc;
