@@ -179,3 +179,44 @@ def test_the_candidates_that_decide_are_fitted_again_to_1e_6(calibrated):
                                        tol=1e-6)
         assert first[e]["parameters"] == {p: fresh["values"][p] for p in CATALOGUE[e].params}
     assert "refined" not in first["coulomb_friction"] and not first["coulomb_friction"]["accepted"]
+
+
+def test_within_reach_rule():
+    """A candidate rejected at the candidates' tolerance is refitted to 1e-6 only where that could
+    change the round's choice (pipeline.REFINE_REACH): within twice the best accepted one's held-out
+    cost, or at least half its held-out gain; an accepted one always, and every one when none is."""
+    best = {"accepted": True, "held_out_cost_after": 0.07, "held_out_gain": 0.93}
+    far = {"accepted": False, "held_out_cost_after": 0.96, "held_out_gain": 0.04}
+    assert pipeline.REFINE_REACH == 2.0
+    assert not pipeline.within_reach(far, best)
+    assert pipeline.within_reach(far, None)
+    assert pipeline.within_reach({**far, "accepted": True}, best)
+    assert pipeline.within_reach({**far, "held_out_cost_after": 0.13}, best)          # 0.13 <= 2 x 0.07
+    assert pipeline.within_reach({**far, "held_out_cost_after": 0.5, "held_out_gain": 0.5}, best)  # 0.5 >= 0.93/2
+    assert not pipeline.within_reach({**far, "held_out_cost_after": 0.55, "held_out_gain": 0.45}, best)
+
+
+@pytest.mark.slow   # the quick tier's 2-minute budget: two searches of a 4 s record, 2-3 s
+def test_a_candidate_out_of_reach_is_not_refitted(calibrated, monkeypatch):
+    """Every candidate fitted to convergence counts as near its threshold (SCREEN_SHARE far below 0):
+    the friction this record lacks, rejected far behind the delay, is not refitted to 1e-6 and says
+    so; with an unbounded reach it is, and rejected again. The delay, the selection and the model the
+    round ends with are the same either way."""
+    prob, values, hold = calibrated
+    monkeypatch.setattr(pipeline, "SCREEN_SHARE", -1e9)
+
+    def first_round():
+        found = pipeline.search(prob, dict(values), ["delay", "coulomb_friction"], hold, 1, lambda s: None)
+        return found, {c["effect"]: c for c in found.candidates if c["round"] == 1}
+
+    found, first = first_round()
+    skipped = first["coulomb_friction"]["refined"]
+    assert skipped["tol"] is None and "out of reach" in skipped["skipped"] and not first["coulomb_friction"]["accepted"]
+    assert first["delay"]["refined"]["tol"] == pipeline.REFINE_TOL and first["delay"]["accepted"]
+    assert not pipeline.within_reach(first["coulomb_friction"], first["delay"])
+    monkeypatch.setattr(pipeline, "REFINE_REACH", 1e9)
+    found2, first2 = first_round()
+    assert first2["coulomb_friction"]["refined"]["tol"] == pipeline.REFINE_TOL
+    assert not first2["coulomb_friction"]["accepted"]
+    assert found2.selected == found.selected and found2.values == found.values
+    assert first2["delay"] == first["delay"]

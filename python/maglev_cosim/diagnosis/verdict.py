@@ -400,17 +400,19 @@ def conclude(rec: Record, baseline: Mapping[str, float], final: Mapping[str, flo
     # record's, so the baseline's estimate holds the same coloured part (a baseline that lacks an
     # effect would take a pickup for coloured sensor noise, and its random force would not compare)
     # The estimates (the disturbance levels' likelihood fits; below, the records the model makes
-    # itself for its share and its floor) run on the fits' RK4 substeps; the figures reported, on
-    # the plant's own (they differ by a few thousandths of the noise: problem.fit_solver_step).
+    # itself for its share and its floor) and the k-step figures they are judged against run on the
+    # fits' RK4 substeps (they differ from the plant's own 0.1 ms by a few thousandths of the noise:
+    # problem.fit_solver_step; the two filter passes with 20 ms predictions took 0.3 s of CPU at
+    # 0.1 ms on the bench's 12 s record); the free runs of the fits and RMS figures, on the plant's own.
     with ThreadPoolExecutor(max_workers=2) as pool:
         job_final = pool.submit(estimate_noise, rec, on_fit_steps(final))
         job_before = pool.submit(estimate_noise, rec, on_fit_steps(baseline), coloured=False)
         noise = job_final.result()
-        job_after = pool.submit(figures, rec, final, sims["after"], noise)
+        job_after = pool.submit(figures, rec, on_fit_steps(final), sims["after"], noise)
         noise_before = job_before.result()
         if noise.coloured:
             noise_before = estimate_noise(rec, on_fit_steps(baseline), sensor=noise)
-        before = figures(rec, baseline, sims["before"], noise_before)
+        before = figures(rec, on_fit_steps(baseline), sims["before"], noise_before)
         after = job_after.result()
     say(f"  final model: random force {noise.q_force * 1e3:.3g} mN RMS (corner {noise.f_force:.3g} Hz), "
         f"sensor noise {noise.r_sensor:.3g} MU RMS white"
