@@ -20,6 +20,7 @@ from maglev_cosim.records.record import RecordError, read_record
 from maglev_cosim.diagnosis.replay import baseline_params
 from maglev_cosim.records.synth import synth_record
 from maglev_cosim.diagnosis.ce152_report import _fmt, write_report
+from maglev_cosim.diagnosis.verdict import at_most_for_implausible, implausible
 
 SEED = 5
 #: A friction the default catalogue lacks: 2 % of the ball's weight, on a short staircase.
@@ -150,3 +151,22 @@ def test_a_record_with_u_and_y_swapped_is_refused_at_once_naming_the_column(tmp_
     assert (err.value.line, err.value.column) == (header, body[header - 1].split(",").index("u") * 2 + 1)
     assert "are u and y swapped?" in err.value.message and "NRMSE fit" in err.value.message
     assert not list(tmp_path.glob("*.fmu"))
+
+
+def test_a_record_the_reader_refuses_unless_told_is_at_most_explained_in_part(tmp_path):
+    """A record read with ``plausibility="warn"`` beyond the reader's refusal thresholds (the ball on
+    a stop in 88 % of the samples: a 0.6 A current limit made it fall) cannot be 'explained' or 'no
+    effect'; the negative verdicts stay, and a plausible record keeps its verdict."""
+    path = synth_record(tmp_path / "r.csv", effects={"current_saturation": {"i_max": 0.6}}, duration=6.0, seed=3)
+    with pytest.raises(RecordError, match="implausible record"):
+        read_record(path)
+    refused = implausible(read_record(path, plausibility="warn"))
+    assert refused and any("rests on a stop" in m for m in refused)
+    assert at_most_for_implausible("explained", True, refused)[0] == "explained in part"
+    verdict, note = at_most_for_implausible("no effect", False, refused)
+    assert verdict == "too little information" and "rests on a stop" in note
+    for kept in ("explained in part", "unexplained: mechanics", "calibration failed"):
+        assert at_most_for_implausible(kept, True, refused) == (kept, None)
+    plain = read_record(synth_record(tmp_path / "ok.csv", duration=6.0, seed=3))
+    assert implausible(plain) == []
+    assert at_most_for_implausible("explained", True, implausible(plain)) == ("explained", None)
