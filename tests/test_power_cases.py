@@ -14,7 +14,7 @@ import pytest
 from maglev_cosim.diagnosis import pipeline
 from maglev_cosim.records import emulator_ivp
 from maglev_cosim.records.record import read_record
-from maglev_cosim.records.synth import draw_disturbance
+from maglev_cosim.records.synth import draw_disturbance, synth_record
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import diagnosis_matrix as dm  # noqa: E402
@@ -117,7 +117,6 @@ def test_a_record_whose_ball_mostly_rests_on_a_stop_is_not_explained(tmp_path):
     """A current limit of 0.6 A on a 6 s staircase of the rig emulator: the ball falls and rests on
     the lower stop in 88 % of the samples, so the reader refuses the record unless told. Read anyway,
     the limit is found (0.626 A), and the verdict is at most 'explained in part', with the reason."""
-    from maglev_cosim.records.synth import synth_record
     path = synth_record(tmp_path / "r.csv", effects={"current_saturation": {"i_max": 0.6}}, duration=6.0, seed=3)
     d = pipeline.run(read_record(path, plausibility="warn"))
     assert d.verdict.verdict not in ("explained", "no effect"), d.verdict.verdict

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..records.record import REFUSE, Record, plausibility_findings
+from ..records.record import Record, plausibility_findings, refused
 from .effects import BASELINE, CATALOGUE
 from .locate import best_per_location, generic_corrections, locate
 from .metrics import chi2_quantile, nrmse_fit
@@ -388,12 +388,11 @@ def implausible(rec: Record) -> list[str]:
     """The reader's plausibility findings beyond what it refuses by default (:data:`.record.REFUSE`):
     a record diagnosed anyway (``plausibility="warn"``) whose verdict can be at most 'explained in
     part' (effects selected) or 'too little information' (none)."""
-    return [message for name, fraction, message in plausibility_findings(rec)
-            if name == "constant" or fraction > REFUSE.get(name, 1.0)]
+    return [message for name, fraction, message in plausibility_findings(rec) if refused(name, fraction)]
 
 
-def at_most_for_implausible(verdict: str, selected: bool, refused: Sequence[str]) -> tuple[str, str | None]:
-    """The verdict of a record the reader refuses unless told to read it (``refused``: :func:`implausible`;
+def at_most_for_implausible(verdict: str, selected: bool, findings: Sequence[str]) -> tuple[str, str | None]:
+    """The verdict of a record the reader refuses unless told to read it (``findings``: :func:`implausible`;
     ``maglev-cosim diagnose --accept-implausible``), and the warning that says why: 'explained'
     becomes 'explained in part' and 'no effect' 'too little information'; the other verdicts stay.
 
@@ -401,10 +400,10 @@ def at_most_for_implausible(verdict: str, selected: bool, refused: Sequence[str]
     the independent emulator, seed 6301, a current limit drawn to act in 8 % of the samples made the
     ball fall, and it rested on the lower stop in 81 % of them; the limit was found within 0.3 %,
     but the final model left twice the true model's 20 ms error, and the verdict read 'explained'."""
-    if not refused or verdict not in ("explained", "no effect"):
+    if not findings or verdict not in ("explained", "no effect"):
         return verdict, None
     capped = "explained in part" if selected else "too little information"
-    return capped, ("the record is one the reader refuses unless told (" + "; ".join(refused) + "): what the "
+    return capped, ("the record is one the reader refuses unless told (" + "; ".join(findings) + "): what the "
                     f"model follows is mostly not a ball under control, so the verdict is at most '{capped}'")
 
 

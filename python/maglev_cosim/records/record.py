@@ -377,7 +377,7 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES, plausibilit
                  header_columns={h: _cell_column(header_raw, j) for j, h in enumerate(header)})
     if plausibility != "off":
         for name, fraction, message in plausibility_findings(rec, params):
-            if plausibility == "refuse" and (name == "constant" or fraction > REFUSE.get(name, 1.0)):
+            if plausibility == "refuse" and refused(name, fraction):
                 col = _cell_column(header_raw, idx["u" if name == "u_saturated" else "y"])
                 raise RecordError(path, header_no, col, f"implausible record: {message}")
             rec.warnings.append(message)
@@ -411,6 +411,12 @@ def _noise_std(y: np.ndarray) -> float:
     """Robust noise level of a signal [its unit]: the MAD of its first differences over sqrt(2)."""
     d = np.diff(y)
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0)) if len(d) else 0.0
+
+
+def refused(name: str, fraction: float) -> bool:
+    """Whether the reader refuses a record by default for the plausibility finding ``name`` over
+    ``fraction`` of its samples (:data:`REFUSE`; a constant ``y`` always)."""
+    return name == "constant" or fraction > REFUSE.get(name, 1.0)
 
 
 def plausibility_findings(rec: Record, params=None) -> list[tuple[str, float, str]]:
