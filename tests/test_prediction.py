@@ -240,3 +240,34 @@ def test_coloured_sensor_noise_is_found_and_white_noise_stays_white():
     nm = estimate_noise(_noisy_record(0.0), baseline_params(), info=info)
     assert not info["coloured_accepted"] and nm.f_sensor == 0.0 and nm.r_coloured == 0.0, (nm, info)
     assert nm.to_json()["f_sensor_Hz"] == 0.0
+
+
+def test_a_nelder_mead_that_stalls_on_a_flat_ridge_is_restarted():
+    """replay.minimize_restarted: on a long, curved, flat valley (as the disturbance likelihood along
+    the random force's RMS and corner), scipy's Nelder-Mead with the estimate's tolerances stops
+    where its simplex has shrunk; started again from there it goes on down the valley, within its
+    budget (80 evaluations, then at most 40 a restart). At a minimum a restart that gains nothing
+    ends the search."""
+    from scipy.optimize import minimize
+    from maglev_cosim.diagnosis.replay import NOISE_RESTARTS, RESTART_MAXFEV, minimize_restarted
+
+    def valley(z):
+        return 25.0 * (z[1] - 0.3 * z[0] ** 2) ** 2 + 1e-3 * (z[0] - 3.0) ** 2
+
+    opts = {"xatol": 0.05, "fatol": 1e-4, "maxfev": 80}
+    for z0 in ([-2.0, 1.0], [-3.0, 2.7]):
+        once = minimize(valley, z0, method="Nelder-Mead", options=opts)
+        again = minimize_restarted(valley, np.array(z0), maxfev=80)
+        assert again.fun < once.fun - 1e-3, (once.fun, again.fun)
+        assert again.nfev <= 80 + NOISE_RESTARTS * RESTART_MAXFEV
+
+    def bowl(z):
+        return float(np.sum((np.asarray(z) - 1.0) ** 2))
+
+    start = np.array([1.5, 0.5])
+    at_min = minimize_restarted(bowl, start, maxfev=80)
+    single = minimize(bowl, start, method="Nelder-Mead", options=opts)
+    restart = minimize(bowl, single.x, method="Nelder-Mead", options={**opts, "maxfev": RESTART_MAXFEV})
+    assert single.fun - restart.fun <= 1e-4               # nothing to gain: one restart, then stop
+    assert at_min.nfev == single.nfev + restart.nfev
+    assert at_min.fun == min(single.fun, restart.fun)

@@ -1265,6 +1265,20 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
             whole, parts, values, say)
     say("estimating parameter uncertainties")
     kept_free = free if free is not None and values != free else None
+    if kept_free is not None and nrmse_fit(prob.rec.y, whole.free_run(values)["y"]) < FREE_RUN_MIN_FIT:
+        # values the k-step fit took whose free run does not follow the record: the free run's
+        # Jacobian there says nothing of them, and their standard errors are those of the criterion
+        # they minimise (the k-step prediction through their own disturbance estimate). On the project
+        # emulator's limit of seed 5401 (active in 28 % of the samples) the k-step fit found i_max
+        # 0.676 A for 0.685 (the free run 0.620), and the free run at those values, which loses the
+        # ball (fit -10.9 %), gave sigma(i_max) = 3.0 A: the limit was judged within 0.3 sigma of off
+        # and the free run's 9 % low value kept. (Where the free run follows the record, its
+        # standard errors stay: on the limit of seed 6501, benchmark seeds 6500, active in 74 % of the
+        # samples, the k-step's own kept a spurious friction of 0.1 mN beside it, which the free
+        # run's put within 3 sigma of off.) The model whose free run fails is searched again in
+        # prediction mode (FREE_RUN_MIN_FIT), whose standard errors are the k-step's too.
+        kstep = _weighted(replace(whole, noise=whole.disturbances(values, fit_steps=True)), values)
+        return values, _uncertainties(kstep, current, selected, values), kept_free
     return values, _uncertainties(prob, current, selected, values), kept_free
 
 
