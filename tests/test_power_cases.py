@@ -68,11 +68,16 @@ def test_a_limit_the_k_step_fit_would_take_off_stays_alone(tmp_path):
     # seed 5401 of benchmark seeds 5400: a limit active in 28 % of the samples, accepted at LR 1227,
     # which the k-step refit took to within 0.3 sigma of off; refitted without it, the search in
     # prediction mode took a Coulomb friction first and the limit 12 % high, `explained` at 3.0 times
-    # the true model's 20 ms error. Judged at the free run's fit, it stays, alone.
+    # the true model's 20 ms error. Judged at the free run's fit, it stays, alone. The k-step fit's
+    # value (i_max 0.676 A for 0.685) is judged by the k-step's standard errors, as the free run at
+    # those values loses the ball; it was judged by the free run's (sigma 3.0 A) and the free run's
+    # value, 9 % low, kept, at 1.23 times the true model's error once the disturbance estimates were
+    # restarted (replay.minimize_restarted). The search in prediction mode then finds it within 1 %.
     planted = {"current_saturation": {"i_max": _benchmark_limit(tmp_path, 5401)}}
     rec, path, d = _diagnose(tmp_path, 5401, planted)
     assert 0.2 < dm._truth(path)["i_limited_share"] < 0.4
     assert d.selected == ["current_saturation"], d.selected
+    assert abs(d.parameters["i_max"] / planted["current_saturation"]["i_max"] - 1) <= 0.05, d.parameters["i_max"]
     assert d.verdict.verdict == "explained"
     assert d.verdict.after.prediction_rms["y"] < 1.2 * dm.true_prediction_y(rec, path, planted)
 
