@@ -48,11 +48,12 @@ def test_a_friction_of_1_8_percent_of_the_weight_is_not_called_no_effect(tmp_pat
 
 
 def _benchmark_limit(tmp_path: Path, seed: int) -> float:
-    """The current limit the benchmark draws for ``seed`` (scripts/diagnosis_matrix.py) [A]."""
+    """The current limit the benchmark drew for ``seed`` (scripts/diagnosis_matrix.py) [A] until
+    2026-11-28, when these cases were found: the nearest to the target share in 6 tries."""
     dist = draw_disturbance(seed)
     share = dm._log_uniform(seed, 2201, *dm.LIMIT_SHARE)
     pct = dm._truth(dm.SYNTH(tmp_path / "null.csv", seed=seed, disturbance=dist))["current_percentiles"]
-    return dm._limit_for_share(tmp_path / "limit.csv", seed, dist, share, pct[50], pct[100])
+    return dm._limit_for_share(tmp_path / "limit.csv", seed, dist, share, pct[50], pct[100], tries=6, within=None)
 
 
 def test_no_second_effect_beside_a_limit_active_62_percent(tmp_path):
