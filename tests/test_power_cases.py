@@ -53,7 +53,7 @@ def _benchmark_limit(tmp_path: Path, seed: int) -> float:
     dist = draw_disturbance(seed)
     share = dm._log_uniform(seed, 2201, *dm.LIMIT_SHARE)
     pct = dm._truth(dm.SYNTH(tmp_path / "null.csv", seed=seed, disturbance=dist))["current_percentiles"]
-    return dm._limit_for_share(tmp_path / "limit.csv", seed, dist, share, pct[50], pct[100], tries=6, within=None)
+    return dm._limit_for_share(tmp_path / "limit.csv", seed, dist, share, pct[50], pct[100], tries=6, within=None)[0]
 
 
 def test_no_second_effect_beside_a_limit_active_62_percent(tmp_path):

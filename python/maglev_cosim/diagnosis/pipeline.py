@@ -202,6 +202,13 @@ def calibrate_by_prediction(rec: Record, base: dict[str, float], fit_mask: np.nd
     return Calibration(pprob, dict(cal.values), free.raw, pprob.free_run(cal.values))
 
 
+def _kstep_problem(whole: Problem, values: Mapping[str, float]) -> Problem:
+    """``whole`` judged by the k-step prediction through the disturbances estimated for ``values``
+    on the fits' substeps, as the verdict estimates them (the same estimate, kept), weighted by the
+    errors ``values`` leave (:func:`_weighted`)."""
+    return _weighted(replace(whole, noise=whole.disturbances(values, fit_steps=True)), values)
+
+
 def _weighted(prob: Problem, values: Mapping[str, float]) -> Problem:
     """``prob`` weighted by the RMS of the errors ``values`` leave on the compared samples."""
     sim, ok = prob.simulate(values), prob.compared()
@@ -1277,7 +1284,7 @@ def _refit(prob: Problem, current: dict[str, float], selected: Sequence[str], sa
         # samples, the k-step's own kept a spurious friction of 0.1 mN beside it, which the free
         # run's put within 3 sigma of off.) The model whose free run fails is searched again in
         # prediction mode (FREE_RUN_MIN_FIT), whose standard errors are the k-step's too.
-        kstep = _weighted(replace(whole, noise=whole.disturbances(values, fit_steps=True)), values)
+        kstep = _kstep_problem(whole, values)
         return values, _uncertainties(kstep, current, selected, values), kept_free
     return values, _uncertainties(prob, current, selected, values), kept_free
 
@@ -1318,7 +1325,7 @@ def _kstep_ridge(whole: Problem, parts: Sequence[Parameterization], values: dict
     i_max 0.707 A for 0.736 A, 1.64 times the true model's 20 ms error, with the verdict `explained`."""
     # the disturbances on the fits' substeps, as the verdict estimates them: the estimate of the model
     # this returns is then the verdict's own (kept, not made again)
-    kstep = _weighted(replace(whole, noise=whole.disturbances(values, fit_steps=True)), values)
+    kstep = _kstep_problem(whole, values)
     before = float(np.mean(residuals(kstep, values) ** 2))
     f = fit(kstep, parts, [p.to_coords(values) for p in parts], max_nfev=40)
     gain = 1.0 - f.cost / before if before > 0 else 0.0
@@ -1358,7 +1365,7 @@ def _kstep_screened(whole: Problem, parts: Sequence[Parameterization], values: d
     scales, the disturbances estimated for the model) promises a fall of at least
     :data:`KSTEP_SCREEN_GAIN`; else the free run's values."""
     # the disturbances on the fits' substeps, as the verdict estimates them (the same estimate, kept)
-    kstep = _weighted(replace(whole, noise=whole.disturbances(values, fit_steps=True)), values)
+    kstep = _kstep_problem(whole, values)
     scales = {k: v for p in parts for k, v in p.uncertainty_scales().items()}
     r0 = residuals(kstep, values)
     jac = parameter_columns(lambda v: residuals(kstep, v), values, scales, r0, map_fn=thread_map)
