@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.optimize import minimize
 
 from maglev_cosim.loop import fast_loop
 from maglev_cosim.diagnosis.verdict import converter_step, on_bounds, own_share, predictable_share
@@ -14,7 +15,8 @@ from maglev_cosim.loop.simulate import settled_start
 from maglev_cosim.plant.params import get_params
 from maglev_cosim.loop.pid import PID
 from maglev_cosim.records.record import Record, read_record
-from maglev_cosim.diagnosis.replay import NoiseModel, baseline_params, estimate_noise, predict
+from maglev_cosim.diagnosis.replay import (NOISE_RESTARTS, RESTART_MAXFEV, NoiseModel, baseline_params,
+                                           estimate_noise, minimize_restarted, predict)
 from maglev_cosim.records.emulator import LSB
 from maglev_cosim.records.synth import synth_record
 
@@ -248,9 +250,6 @@ def test_a_nelder_mead_that_stalls_on_a_flat_ridge_is_restarted():
     where its simplex has shrunk; started again from there it goes on down the valley, within its
     budget (80 evaluations, then at most 40 a restart). At a minimum a restart that gains nothing
     ends the search."""
-    from scipy.optimize import minimize
-    from maglev_cosim.diagnosis.replay import NOISE_RESTARTS, RESTART_MAXFEV, minimize_restarted
-
     def valley(z):
         return 25.0 * (z[1] - 0.3 * z[0] ** 2) ** 2 + 1e-3 * (z[0] - 3.0) ** 2
 
