@@ -297,7 +297,7 @@ int maglev_replay_open_loop(const double *params, const double *u_in, size_t n, 
 
 #define NS 8 /* x, v, i, F, d, xs (the position the sensor sees), c (the coloured sensor noise), F2 (the second
                 force lag's slow part, eddy_lag) */
-#define JAC_EVERY 10
+#define JAC_EVERY 10 /* also maglev_cosim.plant.fast.JAC_EVERY: a replay of a record's later part keeps this grid */
 
 /* P = M P M' (the time update, M the step's Jacobian) over the active states idx[0..na) (ascending)
  * alone: the other rows and columns of P are zero (the filter keeps them so), so the terms skipped are

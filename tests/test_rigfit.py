@@ -173,6 +173,41 @@ def test_several_horizons_in_one_pass_are_the_separate_predictions():
 
 
 
+def test_a_long_segment_replayed_in_two_chunks_is_one_pass(monkeypatch):
+    """A segment of at least CHUNK_S is replayed as two chunks side by side (real_rig._in_chunks): the
+    second chunk's filter starts on the grid of the stride and the filter's linearisation, with the
+    parameters of a plant whose clock starts there (real_rig.shifted). Its predictions, innovations and
+    random force are those of one pass to 1e-6 of their spread, with every term that depends on the
+    time since the start in the model (the coil resistance's and the force gain's drifts, a sensor
+    drift, a pickup) and a delay and a force lag; with the drifts' parameters left as they are, they
+    are not."""
+    rig = load_rig("inteco-mls2em")
+    r = _record(rig, np.zeros(9000), seed=12)
+    p = rig.params.replace(T_d=1.45e-3, T_F=4e-3, kappa_R=1e-3, kappa_c=-1e-3, r_y=2e-4, A_d=5e-4, f_d=37.0, phi_d=0.5)
+
+    def passes() -> list[np.ndarray]:
+        real_rig._replays.clear()
+        many = real_rig.predict_many(rig, r, p, real_rig.CAL_HORIZONS_S, stride=20, noise=NOISE)
+        coil = real_rig.predict(rig, r, p, r.ts, use_current=False, noise=NOISE, stride=3, offset=1)
+        return [many[0]["y_pred"], many[1]["y_pred"], many[0]["d"], many[0]["innov"], coil["i_pred"]]
+
+    def apart(a: list[np.ndarray], b: list[np.ndarray]) -> float:
+        for x, y in zip(a, b):
+            assert np.array_equal(np.isfinite(x), np.isfinite(y))
+        return max(float(np.nanmax(np.abs(x - y)) / np.nanstd(x)) for x, y in zip(a, b))
+
+    chunk_s = real_rig.CHUNK_S
+    assert len(r.y) * r.ts >= chunk_s
+    chunked = passes()
+    monkeypatch.setattr(real_rig, "CHUNK_S", np.inf)
+    one = passes()
+    assert apart(one, chunked) < 1e-6
+    monkeypatch.setattr(real_rig, "CHUNK_S", chunk_s)
+    monkeypatch.setattr(real_rig, "shifted", lambda params, t0: params)
+    assert apart(one, passes()) > 1e-4
+    real_rig._replays.clear()
+
+
 def test_predictions_from_some_starts_are_those_of_every_start_there():
     """The costs that read only some predictions make only those (MaglevFilter.offset, and the
     flagged starts of maglev_replay_predict_masked behind the effect search's even and odd blocks):

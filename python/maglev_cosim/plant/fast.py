@@ -220,6 +220,11 @@ def predict_measured(params: StartValues | Mapping[str, float] | None, y: np.nda
     return out
 
 
+#: The filter of the measured-input replays linearises the plant every this many samples, counted
+#: from a replay's first (``JAC_EVERY`` in ``c/maglev_replay.c``): a replay of a record's later part
+#: that starts on that grid linearises where a replay of the whole record does.
+JAC_EVERY = 10
+
 #: The most horizons one call of :func:`predict_horizons` takes (``MAGLEV_MAX_HORIZONS`` in
 #: ``c/maglev_replay.h``; the C code refuses more with a message).
 MAX_HORIZONS = 64
