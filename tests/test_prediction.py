@@ -221,8 +221,11 @@ def test_coloured_sensor_noise_is_found_and_white_noise_stays_white():
     """The coloured sensor-noise state (issue 22): on a record whose sensor noise is low-passed at
     100 Hz the estimate finds the corner and the coloured RMS, passing the held-out criterion, and
     leaves white innovations; on the same record with white sensor noise the model stays white.
-    Measured (6 s records): corner 103 Hz, coloured 1.96e-4 MU for 2e-4, white 1.7e-4 MU for 1.73e-4
-    (1e-4 and the 12-bit rounding)."""
+    The random force is the record's too (2.5e-4 N RMS with an 8 Hz corner), not the near-white force
+    the white fit took for the coloured noise's share of the innovations, from where the five levels'
+    search did not come back without its second start (replay._coloured_choice; before it: 0.96 mN
+    at 531 Hz). Measured (6 s records): corner 104 Hz, coloured 1.91e-4 MU for 2e-4, white 1.74e-4 MU
+    for 1.73e-4 (1e-4 and the 12-bit rounding), random force 0.27 mN at 13.6 Hz."""
     info: dict = {}
     rec = _noisy_record(100.0)
     nm = estimate_noise(rec, baseline_params(), info=info)
@@ -230,6 +233,7 @@ def test_coloured_sensor_noise_is_found_and_white_noise_stays_white():
     assert 60.0 < nm.f_sensor < 160.0, nm
     assert nm.r_coloured == pytest.approx(2e-4, rel=0.25)
     assert nm.r_sensor == pytest.approx(math.sqrt(1e-4 ** 2 + LSB ** 2 / 12), rel=0.25)
+    assert nm.q_force == pytest.approx(2.5e-4, rel=0.25) and nm.f_force < 30.0, nm
     assert nm.to_json()["f_sensor_Hz"] == nm.f_sensor
     white = NoiseModel(nm.q_force, nm.f_force, nm.sensor_rms)
     shares = [predictable_share(predict(rec, baseline_params(), m, horizon_s=0.0)["innov"], rec.u) for m in (white, nm)]
