@@ -283,7 +283,7 @@ def _in_chunks(r: RigRecord, params: PlantParams, h: int, stride: int, starts: n
     (:data:`~maglev_cosim.plant.fast.JAC_EVERY`), and with the parameters of a plant whose
     clock starts there (:func:`shifted`): the filter forgets where it started within that time (on
     the shared Inteco records the predictions 20 and 50 ms ahead, the innovations and the random
-    force agree with one pass over the segment to 1e-9 of their spread), so the figures are those of
+    force agree with one pass over the segment to 1e-8 of their spread), so the figures are those of
     one pass in about half its wall time."""
     n = len(r.y)
     mid = n // 2
