@@ -62,15 +62,17 @@ def section(res: dict, command: str, wall_s: float) -> str:
              "the measured current and its square up to the predicted instant, fitted by the tool on the three "
              "calibration records), the same black box with the current only up to the prediction's start, "
 "and 'constant velocity'.", "", *real_rig.comparison_table(RigComparison.from_json(comp))]
-    lines += ["", "Per segment: the current from the PWM duty (fit %), and the skill of model (closed loop, identified "
+    lines += ["", "Per segment: the current from the PWM duty (fit %; in brackets the most a model can reach with the "
+              "measured current's own noise, `metrics.fit_ceiling`), and the skill of model (closed loop, identified "
               "controller) / black box at each horizon.", "", "| segment | role | current from PWM | 5 ms | 20 ms | 50 ms |", "|---|---|---|---|---|---|"]
     rows = [(s["label"], "calibration", s["after"]) for e in res["records"] for s in e["segments"]]
     rows += [(v["label"], "validation", v["after"]) for v in res["validation"]]
     for label, role, f in rows:
-        cur = (f.get("current") or {}).get("from_actuator", float("nan"))
+        cur = f.get("current") or {}
         cells = [f"{_skill_cell(f['position'][h], 'model')} / {_skill_cell(f['position'][h], 'black_box')}"
                  for h in ("5 ms", "20 ms", "50 ms")]
-        lines.append(f"| {label} | {role} | {cur:.1f} | " + " | ".join(cells) + " |")
+        lines.append(f"| {label} | {role} | {cur.get('from_actuator', float('nan')):.1f} "
+                     f"({cur.get('noise_ceiling', float('nan')):.1f}) | " + " | ".join(cells) + " |")
     cal = res.get("calibration") or {}
     nz = res.get("disturbance_model", {})
     lines += ["", "Calibrated parameters: " + ", ".join(f"`{k}` = {v:.5g}" for k, v in res["parameters"].items()) + "."]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from maglev_cosim.diagnosis.metrics import chi2_quantile, correlation, nrmse_fit, psd, resid
+from maglev_cosim.diagnosis.metrics import (chi2_quantile, correlation, fit_ceiling, nrmse_fit, psd, resid,
+                                            white_noise_rms)
 
 
 def test_nrmse_fit_matches_matlabs_definition():
@@ -16,6 +17,21 @@ def test_nrmse_fit_matches_matlabs_definition():
     assert nrmse_fit(y, half) == pytest.approx(50.0)
     assert nrmse_fit(y, -y) < 0                        # worse than the mean
     assert np.isnan(nrmse_fit(np.ones(10), np.zeros(10)))
+
+
+def test_the_white_noise_under_a_slow_signal_and_the_fit_it_allows():
+    """white_noise_rms reads the white floor of a signal above its band (a coil current's noise under
+    its own 2-20 Hz motion, 1 kHz samples), and fit_ceiling is the fit of a prediction whose only error
+    is that noise: the noise-free signal's own fit to the noisy one."""
+    rng = np.random.default_rng(4)
+    t = np.arange(15000) * 1e-3
+    slow = 0.1 * np.sin(2 * np.pi * 2 * t) + 0.03 * np.sin(2 * np.pi * 20 * t + 1)
+    for sigma in (2e-3, 6e-3, 2e-2):
+        noisy = slow + rng.normal(0.0, sigma, len(t))
+        assert white_noise_rms(noisy - slow, 1e-3) == pytest.approx(sigma, rel=0.05)
+        assert white_noise_rms(noisy, 1e-3) == pytest.approx(sigma, rel=0.05)      # the slow part is below the band
+        assert fit_ceiling(noisy, sigma) == pytest.approx(nrmse_fit(noisy, slow), abs=0.5)
+    assert np.isnan(white_noise_rms(np.zeros(8), 1e-3)) and np.isnan(fit_ceiling(np.ones(50), 1e-3))
 
 
 def test_resid_band_holds_white_noise_and_flags_coloured_noise():

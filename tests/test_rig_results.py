@@ -83,7 +83,7 @@ def test_the_figures_json_keeps_the_keys_of_diagnosis_json(stages):
     d = f.to_json()
     assert list(d) == ["label", "samples", "duration_s", "position", "identified_controller", "drift", "current"]
     assert d["samples"] == 4000 and d["duration_s"] == pytest.approx(4.0) and d["label"] == "model 32"
-    assert list(d["position"]) == HORIZONS and list(d["current"]) == ["from_actuator", *HORIZONS]
+    assert list(d["position"]) == HORIZONS and list(d["current"]) == ["from_actuator", "noise_A", "noise_ceiling", *HORIZONS]
     for h in HORIZONS:
         p = d["position"][h]
         # with a black box, its fit comes last and its skills beside the model's

@@ -208,6 +208,23 @@ def test_a_long_segment_replayed_in_two_chunks_is_one_pass(monkeypatch):
     real_rig._replays.clear()
 
 
+def test_the_current_figures_give_the_noise_of_the_measured_current_and_the_fit_it_allows():
+    """figures' current entry: on a record of the model itself with 5 mA of white noise on the
+    measured current, the residual's white noise is those 5 mA and the model's fit from the actuator
+    signal sits at the fit that noise allows (real_rig.figures, metrics.white_noise_rms); a coil
+    resistance 10 % off leaves the fit far below that ceiling, which stays where it was. Measured:
+    5.0007 mA, fit 90.36 % at a ceiling of 90.36 %; with the wrong resistance a fit of -57 %."""
+    rig = load_rig("inteco-mls2em")
+    r = _record(rig, np.zeros(4000), seed=13)
+    cur = real_rig.figures(rig, r, rig.params, NOISE).current
+    assert cur["noise_A"] == pytest.approx(5e-3, rel=0.05)
+    assert cur["from_actuator"] == pytest.approx(cur["noise_ceiling"], abs=0.5)
+    assert 80.0 < cur["noise_ceiling"] < 100.0
+    off = real_rig.figures(rig, r, rig.params.replace(R_c=1.1 * rig.params.R_c), NOISE).current
+    assert off["noise_ceiling"] == pytest.approx(cur["noise_ceiling"], abs=0.5)
+    assert off["from_actuator"] < cur["noise_ceiling"] - 20.0
+
+
 def test_predictions_from_some_starts_are_those_of_every_start_there():
     """The costs that read only some predictions make only those (MaglevFilter.offset, and the
     flagged starts of maglev_replay_predict_masked behind the effect search's even and odd blocks):

@@ -79,6 +79,34 @@ def resid(e: np.ndarray, u: np.ndarray, *, max_lag: int = 25, confidence: float 
                  int(np.sum(np.abs(cross) > band)))
 
 
+#: The band, in shares of the Nyquist frequency, where :func:`white_noise_rms` reads a residual's floor:
+#: above a coil's or a loop's bandwidth, below the anti-aliasing edge.
+NOISE_BAND = (0.4, 0.9)
+
+
+def white_noise_rms(e: np.ndarray, ts: float) -> float:
+    """The RMS of the white noise in ``e`` [its unit], sampled at ``ts`` [s]: Welch's density (:func:`psd`)
+    averaged over :data:`NOISE_BAND` of the Nyquist frequency, times the Nyquist frequency (white noise
+    of variance σ² has the one-sided density σ²/f_Nyquist). Of a model's residual, that is the
+    measurement's own noise where the model predicts nothing in the band, and an upper bound on it
+    where the model's error reaches the band. NaN for fewer than 16 samples."""
+    e = np.asarray(e, float)
+    if len(e) < 16:
+        return float("nan")
+    f, p = psd(e, ts)
+    nyquist = 0.5 / ts
+    band = (f >= NOISE_BAND[0] * nyquist) & (f <= NOISE_BAND[1] * nyquist)
+    return float(np.sqrt(np.mean(p[band]) * nyquist)) if band.any() else float("nan")
+
+
+def fit_ceiling(y: np.ndarray, noise_rms: float) -> float:
+    """The NRMSE fit [%] (:func:`nrmse_fit`) of a prediction of ``y`` whose only error is white noise of
+    RMS ``noise_rms`` (in ``y``'s unit): ``100·(1 − noise_rms/std(y))``, what no model of the signal can
+    beat when that noise is the measurement's."""
+    spread = float(np.std(np.asarray(y, float)))
+    return float(100.0 * (1.0 - noise_rms / spread)) if spread > 0 else float("nan")
+
+
 def psd(x: np.ndarray, ts: float, *, seconds_per_segment: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """Welch's PSD of ``x`` sampled at ``ts`` [s]: frequencies [Hz] and density [unit²/Hz],
     Hann segments of ``seconds_per_segment`` (at most the record), half overlapping."""

@@ -54,7 +54,7 @@ from . import reaction
 from .effects import CATALOGUE, force_law
 from .memo import Memo
 from .jacobian import difference_jacobian, gauss_newton_gain
-from .metrics import nrmse_fit
+from .metrics import fit_ceiling, nrmse_fit, white_noise_rms
 from .neldermead import nelder_mead
 from .problem import Coord
 from .result import (CalibratedFmu, Comparison, Fit, HorizonSkill, LocationEvidence, PredictionFit, RecordRef, Residual,
@@ -401,7 +401,9 @@ def figures(rig: Rig, r: RigRecord, params: PlantParams, noise: dict[str, float]
     if r.current is not None:
         o = predict(rig, r, params, r.ts, use_current=False, noise=noise)
         ok = _valid(len(r.y), 1, r.ts) & np.isfinite(o["i_pred"])
-        cur = {"from_actuator": nrmse_fit(r.current[ok], o["i_pred"][ok])}
+        white = white_noise_rms(r.current[ok] - o["i_pred"][ok], r.ts)
+        cur = {"from_actuator": nrmse_fit(r.current[ok], o["i_pred"][ok]), "noise_A": white,
+               "noise_ceiling": fit_ceiling(r.current[ok], white)}
     else:
         cur = None
     series = bb.Series(r.position, r.current if r.current is not None else r.u, r.ts)
@@ -1645,7 +1647,7 @@ def conclude(rig: Rig, figs: list[RigFigures], info: list[list[str]], cal: RigCa
         cur = [f.current["from_actuator"] for f in figs if f.current]
         if cur:
             reasons.append(f"for what it is worth, the rig file's coil model fits the current from the actuator "
-                           f"signal at {np.median(cur):.1f} % (median over segments)")
+                           f"signal at {np.median(cur):.1f} % (median over segments){_ceiling_note(figs)}")
         return "too little information", reasons
     if cal and cal.on_bounds:
         return "calibration failed", [f"calibrated {', '.join(cal.on_bounds)} ended on a bound"]
@@ -1656,14 +1658,27 @@ def conclude(rig: Rig, figs: list[RigFigures], info: list[list[str]], cal: RigCa
         return "too little information", ["the gap never moves within a segment"]
     if cur and np.median(cur) < MIN_CURRENT_FIT:
         reasons.append(f"the coil current from the actuator signal fits only {np.median(cur):.1f} % "
-                       f"(median over segments; at least {MIN_CURRENT_FIT:g} % expected)")
+                       f"(median over segments; at least {MIN_CURRENT_FIT:g} % expected){_ceiling_note(figs)}")
         return "unexplained: actuator", reasons
     if np.median(skill) < MIN_SKILL:
         reasons.append(f"the current path is explained ({np.median(cur):.1f} % fit) but the gap 20 ms ahead "
                        f"is predicted with skill {np.median(skill):+.2f} against 'stays put' (median; "
                        f"{MIN_SKILL:g} needed): what the model lacks acts on the force or the mechanics")
         return "unexplained: mechanics", reasons
-    return "explained", [f"current fit {np.median(cur):.1f} %, skill at 20 ms {np.median(skill):+.2f}"]
+    return "explained", [f"current fit {np.median(cur):.1f} %{_ceiling_note(figs)}, skill at 20 ms "
+                         f"{np.median(skill):+.2f}"]
+
+
+def _ceiling_note(figs: Sequence[RigFigures]) -> str:
+    """How far the measured current's own noise lets its fit go (:func:`~.metrics.fit_ceiling`, median
+    over the segments with a current; an estimate, which a model at the noise floor may pass by a few
+    tenths), as a parenthesis for the reasons; empty without a current."""
+    ceil = [f.current["noise_ceiling"] for f in figs if f.current and np.isfinite(f.current.get("noise_ceiling", np.nan))]
+    noise = [f.current["noise_A"] for f in figs if f.current and np.isfinite(f.current.get("noise_A", np.nan))]
+    if not ceil:
+        return ""
+    return (f" (the measured current's own noise, {1e3 * np.median(noise):.1f} mA RMS white, limits it to about "
+            f"{np.median(ceil):.1f} %)")
 
 
 def comparison(calibration: Sequence[RigFigures], validation: Sequence[RigFigures]) -> RigComparison:
@@ -2278,7 +2293,7 @@ def _values(c: EffectTrial) -> str:
 
 def _row(label: str, f: RigFigures) -> str:
     cur = f.current or {}
-    cells = [label, f"{cur.get('from_actuator', float('nan')):.1f}"]
+    cells = [label, f"{cur.get('from_actuator', float('nan')):.1f} ({cur.get('noise_ceiling', float('nan')):.1f})"]
     for h in ("5 ms", "20 ms", "50 ms"):
         p = f.position[h]
         bb = p.skill.get("black_box")
@@ -2289,7 +2304,7 @@ def _row(label: str, f: RigFigures) -> str:
 
 
 def _markdown(res: RigRun, plots: list[Path]) -> str:
-    head = ("| segment | current from actuator, fit % | gap 5 ms: model / stays put / const. velocity (skill; black box's) "
+    head = ("| segment | current from actuator, fit % (at most, for its noise) | gap 5 ms: model / stays put / const. velocity (skill; black box's) "
             "| 20 ms | 50 ms | current 20 ms ahead, fit % |\n|---|---|---|---|---|---|")
     lines = [f"# Rig {res.rig}: measured records", "", f"**Verdict: {res.verdict}**", ""]
     lines += [f"- {r}" for r in res.reasons]

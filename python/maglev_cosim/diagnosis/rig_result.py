@@ -188,7 +188,10 @@ class RigFigures:
         The filtered random force's drift through the segment.
     current : dict of str to float or None
         NRMSE fit [%] of the coil current from the actuator signal alone (``from_actuator``) and
-        predicted ahead (by horizon); None without a measured current.
+        predicted ahead (by horizon); the white noise of its residual [A] (``noise_A``,
+        :func:`~.metrics.white_noise_rms`: the measured current's own noise, or a bound on it) and the fit
+        that noise alone allows [%] (``noise_ceiling``, :func:`~.metrics.fit_ceiling`); None without a
+        measured current.
     """
 
     label: str
