@@ -2304,7 +2304,7 @@ def _row(label: str, f: RigFigures) -> str:
 
 
 def _markdown(res: RigRun, plots: list[Path]) -> str:
-    head = ("| segment | current from actuator, fit % (at most, for its noise) | gap 5 ms: model / stays put / const. velocity (skill; black box's) "
+    head = ("| segment | current from actuator, fit % (the most its noise allows) | gap 5 ms: model / stays put / const. velocity (skill; black box's) "
             "| 20 ms | 50 ms | current 20 ms ahead, fit % |\n|---|---|---|---|---|---|")
     lines = [f"# Rig {res.rig}: measured records", "", f"**Verdict: {res.verdict}**", ""]
     lines += [f"- {r}" for r in res.reasons]
