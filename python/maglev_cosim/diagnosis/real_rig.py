@@ -1673,12 +1673,11 @@ def _ceiling_note(figs: Sequence[RigFigures]) -> str:
     """How far the measured current's own noise lets its fit go (:func:`~.metrics.fit_ceiling`, median
     over the segments with a current; an estimate, which a model at the noise floor may pass by a few
     tenths), as a parenthesis for the reasons; empty without a current."""
-    ceil = [f.current["noise_ceiling"] for f in figs if f.current and np.isfinite(f.current.get("noise_ceiling", np.nan))]
-    noise = [f.current["noise_A"] for f in figs if f.current and np.isfinite(f.current.get("noise_A", np.nan))]
-    if not ceil:
+    cur = [f.current for f in figs if f.current and np.isfinite(f.current.get("noise_ceiling", np.nan))]
+    if not cur:
         return ""
-    return (f" (the measured current's own noise, {1e3 * np.median(noise):.1f} mA RMS white, limits it to about "
-            f"{np.median(ceil):.1f} %)")
+    return (f" (the measured current's own noise, {1e3 * np.median([c['noise_A'] for c in cur]):.1f} mA RMS white, "
+            f"limits it to about {np.median([c['noise_ceiling'] for c in cur]):.1f} %)")
 
 
 def comparison(calibration: Sequence[RigFigures], validation: Sequence[RigFigures]) -> RigComparison:
