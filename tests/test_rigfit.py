@@ -83,6 +83,11 @@ def test_the_figures_show_the_black_box_beside_the_model_and_the_verdict_heeds_i
     lost = {"segments": 1, "20 ms": {"model": 0.5, "black_box": 0.3}, "50 ms": {"model": -0.1, "black_box": 0.4}}
     judge = lambda comp: real_rig.judge_against_black_box("explained", RigComparison.from_json(comp))  # noqa: E731
     assert judge({"validation": won})[0] == "explained"
+    assert "beats the black-box baseline at every horizon" in judge({"validation": won})[1][0]
+    # no black box fitted (a record with too little information): no claim that the model beats it
+    unfitted = {"segments": 1, "20 ms": {"model": -79.0, "black_box": float("nan")}}
+    verdict, why = judge({"calibration": unfitted})
+    assert verdict == "explained" and "no black-box baseline to compare with at 20 ms" in why[0]
     verdict, why = judge({"calibration": won, "validation": lost})
     assert verdict == "explained in part" and "50 ms" in why[0] and "20 ms:" not in why[0]
     assert real_rig.judge_against_black_box("unexplained: mechanics", RigComparison.from_json({"validation": lost}))[0] \

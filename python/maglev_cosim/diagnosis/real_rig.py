@@ -1722,7 +1722,12 @@ def judge_against_black_box(verdict: str, comp: RigComparison) -> tuple[str, lis
     if not figs:
         return verdict, []
     lost = [(h, v) for h, v in figs.horizons.items() if np.isfinite(v.black_box) and not v.model > v.black_box]
+    unjudged = [h for h, v in figs.horizons.items() if not np.isfinite(v.black_box)]
     if not lost:
+        if unjudged:    # no black box there (none fitted, or no sample it predicts): no claim either way
+            return verdict, [f"no black-box baseline to compare with at {', '.join(unjudged)} on the {role} "
+                             "segments (none was fitted, or it predicts none of their samples): the model is "
+                             "judged there against \"stays put\" alone"]
         return verdict, [f"the model beats the black-box baseline at every horizon on the {role} segments"]
     why = ", ".join(f"{h}: model {v.model:+.2f} against black box {v.black_box:+.2f}" for h, v in lost)
     reasons = [f"the model predicts the gap worse than the black-box baseline fitted on the same calibration "
