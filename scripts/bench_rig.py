@@ -8,17 +8,23 @@ table, the calibrated parameters and disturbance model, and the drift findings. 
 doc are written only by this script.
 
     .venv/bin/python scripts/bench_rig.py [--data ../shared/data/real] [--out out/bench-rig] [--no-write]
-                                          [--second-force-lag joint|after]
+                                          [--second-force-lag joint|after] [--across-profiles]
 
 ``--second-force-lag`` measures the calibration with the second force lag (effect ``eddy_lag``) fitted
 (real_rig.SECOND_FORCE_LAG_FIT; off by default); the section it would write then names the option in
 its command.
+
+``--across-profiles`` measures instead whether the model carries over to a reference profile it was
+not calibrated on (the judged records use others: up-down steps, slow and fast sines): calibrated on
+every shared record of one profile, validated on every record of the other, both ways. It writes
+the section "Real rig: across reference profiles (Inteco MLS2EM)".
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -32,6 +38,9 @@ CALIBRATION = ("multisteps_stairs/LQR_tracking", "multisteps_stairs/PID_anti_win
 VALIDATION = ("multisteps_stairs/LQI", "multisteps_stairs/MPC", "multisteps_stairs/PID_gain_scheduling",
               "step/LQI", "step/PID_anti_windup", "step/PID_gain_scheduling")
 SECTION = "## Real rig: calibration and validation (Inteco MLS2EM)"
+PROFILES = {"step": ("LQI", "MPC", "PID_anti_windup", "PID_gain_scheduling"),
+            "multisteps_stairs": ("LQI", "LQR_tracking", "MPC", "PID_anti_windup", "PID_gain_scheduling")}
+ACROSS_TITLE = "Real rig: across reference profiles (Inteco MLS2EM)"
 
 
 def _data_dir(arg: str | None) -> Path:
@@ -98,6 +107,39 @@ def section(res: dict, command: str, wall_s: float) -> str:
     return "\n".join(lines)
 
 
+def across_profiles(res_dir: Path, out: Path) -> tuple[str, float]:
+    """The model calibrated on every record of one profile and validated on every record of the
+    other, both ways: the body of the section :data:`ACROSS_TITLE` and the wall time [s]."""
+    rows, commands = [], []
+    t0 = time.perf_counter()
+    for fit_on, judged in (("step", "multisteps_stairs"), ("multisteps_stairs", "step")):
+        cal = [res_dir / fit_on / f"{c} - KF.mat" for c in PROFILES[fit_on]]
+        val = [res_dir / judged / f"{c} - KF.mat" for c in PROFILES[judged]]
+        commands.append(".venv/bin/maglev-cosim calibrate " + " ".join(f'"$I/{fit_on}/{c} - KF.mat"' for c in PROFILES[fit_on])
+                        + "".join(f' --validate "$I/{judged}/{c} - KF.mat"' for c in PROFILES[judged])
+                        + f" --rig inteco-mls2em --out out/{fit_on}-to-{judged}")
+        res = diagnose(cal, rig="inteco-mls2em", validate=val, out=out / f"{fit_on}-to-{judged}",
+                       progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True)).to_json()
+        comp = RigComparison.from_json(res["comparison"]).get("validation")
+        for h, v in comp.horizons.items():
+            rows.append([f"{fit_on} ({len(cal)}) → {judged} ({comp.segments})", h, f"{v.model:+.2f} ({v.model_worst:+.2f})",
+                         f"{v.black_box:+.2f} ({v.black_box_worst:+.2f})",
+                         "yes" if v.model > v.black_box else "**no**"])
+        fits = [v["after"]["current"]["from_actuator"] for v in res["validation"] if v["after"].get("current")]
+        rows.append(["", "", f"verdict: {res['verdict']}", "selected: " + (", ".join(res["selected"]) or "none"),
+                     f"current from the PWM duty: median {statistics.median(fits):.1f} %, worst {min(fits):.1f} %"
+                     if fits else "no measured current"])
+    body = ("The model calibrated on every shared record of one reference profile and judged on every record of "
+            "the other, both ways (the judged records use profiles the shared folder lacks). Median skill "
+            "against 'stays put' over the validation segments (worst in brackets) of the model in closed loop "
+            "with the identified controller and of the black-box baseline fitted on the same calibration "
+            "records. The commands it runs are equivalent to:\n\n```\nI=../shared/data/real/inteco-mls2em/results\n"
+            + "\n".join(commands) + "\n```\n\n"
+            + benchdoc.table(["calibrated on → validated on (segments)", "horizon", "model", "black box",
+                              "model ahead at this horizon"], rows))
+    return body, time.perf_counter() - t0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", help="the shared real records (default: $MAGLEV_REAL_DATA or ../shared/data/real)")
@@ -106,7 +148,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--second-force-lag", choices=("joint", "after"),
                     help="fit the second force lag (eddy_lag) too: with the rest or after it (default: "
                          "real_rig.SECOND_FORCE_LAG_FIT)")
+    ap.add_argument("--across-profiles", action="store_true",
+                    help="calibrate on every record of one profile, validate on the other's, both ways")
     a = ap.parse_args(argv)
+    if a.across_profiles:
+        body, wall = across_profiles(_data_dir(a.data) / "inteco-mls2em" / "results", Path(a.out))
+        benchdoc.publish(benchdoc.section(ACROSS_TITLE, body, wall), write=not a.no_write)
+        return 0
     if a.second_force_lag:
         real_rig.SECOND_FORCE_LAG_FIT = a.second_force_lag
     res_dir = _data_dir(a.data) / "inteco-mls2em" / "results"
