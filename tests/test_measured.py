@@ -461,3 +461,26 @@ def test_formats_are_told_by_content_not_by_name(tmp_path):
     txt = tmp_path / "levitador.mat"           # the levitador's first format under a MATLAB name
     shutil.copy(LEVITADOR, txt)
     assert sniff(txt) == "levitador" and read_measured(txt).n == read_levitador(LEVITADOR).n
+
+
+def test_a_row_the_diagnosis_does_not_need_may_be_missing_but_not_one_it_needs(tmp_path):
+    """A logouts file whose other coil's current is NaN is read without that row (a warning names
+    it); one whose measured current is NaN is refused with the row and sample."""
+    import scipy.io
+
+    n = 400
+    t = np.arange(n) * 1e-3
+    L = np.zeros((14, n))
+    L[0], L[1], L[2] = t, 0.009, 0.009 + 1e-4 * np.sin(40 * t)
+    L[4], L[12] = 0.8 + 0.01 * np.cos(40 * t), 0.3 + 0.01 * np.cos(40 * t)
+    bad = L.copy()
+    bad[5, 17:] = np.nan                                   # the other coil's current (row 5)
+    scipy.io.savemat(tmp_path / "other_coil.mat", {"logouts": bad})
+    m = read_inteco_mat(tmp_path / "other_coil.mat")
+    assert m.n == n and "current_2" not in m.extra and np.array_equal(m.current, L[4])
+    assert any("read without row 5 (current_2) is not a finite number at sample 17" in w for w in m.warnings)
+    bad = L.copy()
+    bad[4, 30] = np.inf                                    # the measured current itself
+    scipy.io.savemat(tmp_path / "current.mat", {"logouts": bad})
+    with pytest.raises(RecordError, match=r"current.mat:0:0: logouts row 4 \(current\) is not a finite number at sample 30"):
+        read_inteco_mat(tmp_path / "current.mat")

@@ -43,6 +43,9 @@ from .record import RecordError
 UNIFORM_TOL = 1e-3
 INTECO_ROWS = {"t": 0, "reference": 1, "position": 2, "velocity": 3, "current": 4, "current_2": 5,
                "control": 6, "control_2": 7, "z_hat": 8, "v_hat": 9, "i_hat": 10, "drive": 12, "drive_2": 13}
+#: The ``logouts`` rows a record cannot be read without: the rest (the other coil, the estimator's
+#: copies, the reference) are left out with a warning where they are not finite.
+INTECO_NEEDED = ("t", "position", "current", "drive")
 #: A current below ``coil_off`` of its 99th percentile for this long [s] means the coil is off.
 COIL_OFF_MIN = 0.1
 LEVITADOR_COLUMNS = ("t", "reference", "position", "current_reference", "current", "voltage")
@@ -161,6 +164,7 @@ def read_inteco_mat(path: str | Path, *, coil: int = 1, resample: bool = False) 
         raise RecordError(path, 0, 0, f"not a MATLAB .mat file scipy can read ({type(e).__name__}: {e})") from None
     meta = {"format": "inteco-mat", "coil": str(coil), "profile": path.parent.name,
             "controller": re.sub(r"\s*-\s*KF$", "", path.stem), "estimator": "KF" if path.stem.endswith("KF") else ""}
+    dropped: list[str] = []     # the rows read without (logouts)
     if "logouts" in d:
         L = np.asarray(d["logouts"], dtype=float)
         if L.ndim != 2 or L.shape[0] < 14:
@@ -172,7 +176,14 @@ def read_inteco_mat(path: str | Path, *, coil: int = 1, resample: bool = False) 
             rows.update(current=5, current_2=4, control=7, control_2=6, drive=13, drive_2=12)
         sig = {name: L[r].copy() for name, r in rows.items()}
         for name, r in rows.items():
-            _check_signal(path, f"logouts row {r} ({name})", sig[name], lambda k: (0, 0))
+            if name in INTECO_NEEDED:
+                _check_signal(path, f"logouts row {r} ({name})", sig[name], lambda k: (0, 0))
+            elif not np.all(np.isfinite(sig[name])):
+                # a row the diagnosis does not need (the other coil, the estimator's copies, the
+                # reference): read without it rather than refuse the record
+                dropped.append(f"row {r} ({name}) is not a finite number at sample "
+                               f"{int(np.flatnonzero(~np.isfinite(sig[name]))[0])}")
+                sig[name] = None
     elif "MLS2EMExpData" in d:
         s = d["MLS2EMExpData"][0, 0]
         try:
@@ -200,6 +211,9 @@ def read_inteco_mat(path: str | Path, *, coil: int = 1, resample: bool = False) 
                  extra={k: v for k, v in sig.items() if v is not None}, metadata=meta)
     if note:
         m.warnings.append(note)
+    if dropped:
+        m.warnings.append("read without " + "; ".join(dropped) + ": the diagnosis does not need "
+                          + ("them" if len(dropped) > 1 else "it"))
     z_hat = m.extra.get("z_hat")
     if z_hat is not None and np.array_equal(m.position, z_hat):
         # step/PID_* of the shared data: what the PID saw was logged in place of the sensor
