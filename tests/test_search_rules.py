@@ -458,6 +458,46 @@ def test_an_effect_the_k_step_fit_takes_off_leaves_only_where_the_free_run_does_
     assert selected == [] and calls == [["delay"], []]
 
 
+def test_an_effect_the_k_step_fit_takes_across_off_is_judged_as_one_it_took_off(monkeypatch):
+    """The free run's fit has a sensor bend at k_x2 = -1276 V/m², the k-step fit that ends the refit
+    at +1181 ± 290 (4σ from off, so not faint): two fits of one model disagree on the bend's sign
+    (the independent emulator's force lag of seed 6800, benchmark seeds 6800). It is judged as one
+    the k-step fit took off: it leaves where the free run without it still follows the record."""
+    calls = []
+
+    def fake_refit(prob, current, selected, say):
+        calls.append(list(selected))
+        if selected:
+            return {"k_x2": 1181.0}, {"k_x2": 290.0}, {"k_x2": -1276.0}
+        return {"k_x2": 0.0}, {}, None
+
+    monkeypatch.setattr(pipeline, "_refit", fake_refit)
+    monkeypatch.setattr(pipeline, "_uncertainties", lambda prob, current, selected, values: {"k_x2": 290.0})
+    y = np.sin(np.linspace(0.0, 20.0, 500))
+    prob = SimpleNamespace(base={"k_x2": 0.0}, noise=None, rec=SimpleNamespace(y=y),
+                           free_run=lambda v: {"y": y + 0.01 * np.cos(np.linspace(0.0, 20.0, 500))})
+
+    def run() -> tuple[dict, list[str], list[str]]:
+        calls.clear()
+        said: list[str] = []
+        selected = ["sensor_nonlinearity"]
+        values, _ = pipeline.refit(prob, {"k_x2": -1000.0}, selected, said.append)
+        return values, selected, said
+
+    values, selected, said = run()
+    assert values == {"k_x2": 0.0} and selected == [] and calls == [["sensor_nonlinearity"], []]
+    assert any("to the other side of off" in m and "k_x2 -1276 -> 1181" in m for m in said)
+    monkeypatch.setattr(pipeline, "KSTEP_CROSSING_LEAVES", False)        # the rule before: it stays
+    values, selected, said = run()
+    assert values == {"k_x2": 1181.0} and selected == ["sensor_nonlinearity"] and calls == [["sensor_nonlinearity"]]
+    # the same side of off: no crossing, the k-step fit's values stand
+    monkeypatch.setattr(pipeline, "KSTEP_CROSSING_LEAVES", True)
+    monkeypatch.setattr(pipeline, "_refit", lambda prob, current, selected, say:
+                        ({"k_x2": 1181.0}, {"k_x2": 290.0}, {"k_x2": 1276.0}))
+    values, selected, said = run()
+    assert values == {"k_x2": 1181.0} and selected == ["sensor_nonlinearity"]
+
+
 def test_the_gradient_screen_passes_a_second_effect_that_is_there_and_stops_those_that_are_not(tmp_path):
     """A later round's gradient screen (issue 22, item 7): one Gauss-Newton step from the limit's model,
     each effect off. The 2.5 ms delay planted beside the 0.72 A limit promises a likelihood ratio far
