@@ -79,6 +79,43 @@ def test_the_reaction_gain_inverts_an_exact_controller_and_ignores_a_useless_one
     assert np.abs(reaction_gain(b, cov, 1e12) @ (B @ e)).max() < 1e-9
 
 
+def test_the_last_error_gain_is_the_reaction_gain_s_last_row_or_reads_fewer_reactions():
+    rng = np.random.default_rng(6)
+    h, b = 6, np.array([2.0, -1.0, 0.3])
+    A = rng.normal(size=(h, h))
+    cov = A @ A.T + np.eye(h)
+    assert reaction.last_error_gain(b, cov, 0.1, h) == pytest.approx(reaction_gain(b, cov, 0.1)[h - 1])
+    g = reaction.last_error_gain(b, cov, 0.1, h - 1)
+    assert g.shape == (h - 1,) and reaction.last_error_gain(b, cov, 0.1, 0).shape == (0,)
+
+
+def test_the_prediction_does_not_read_the_actuator_value_computed_from_the_predicted_reading(monkeypatch):
+    """A controller with direct feedthrough, u[t] = 2·y[t] + noise: its output at the predicted
+    instant holds the reading there. The prediction h samples ahead reads the actuator signal only
+    up to h − READ_BEFORE (the information of a current measured at that instant, which the
+    actuator has not moved yet): its error stays that of the reading's last step; read up to h, it
+    would be the reading itself."""
+    rng = np.random.default_rng(7)
+    n, H = 6000, 5
+    steps = rng.normal(size=n) * 1e-3
+    y = np.cumsum(steps)
+    u = 2.0 * y + 1e-9 * rng.normal(size=n)
+    traj = np.full((n, H + 1), np.nan)
+    for j in range(1, H + 1):
+        traj[:n - j, j] = y[:n - j]                       # the model: "stays put"
+    assert reaction.READ_BEFORE == 1
+
+    def error() -> float:
+        out = reaction.predict(y, u, None, traj, [H], 1e-3, orders={"u": 1, "y": 1})
+        ok = np.isfinite(out.y_pred[0])
+        return float(np.sqrt(np.mean((y[ok] - out.y_pred[0][ok]) ** 2)))
+
+    kept = error()
+    assert 0.7e-3 < kept < 1.3e-3                         # one step of the reading's walk is left
+    monkeypatch.setattr(reaction, "READ_BEFORE", 0)
+    assert error() < 0.5 * kept                           # the reading read back through the controller
+
+
 def test_a_controller_that_does_not_react_leaves_the_model_s_prediction_as_it_was():
     """An actuator signal independent of the reading (noise): what the identification finds is
     chance, and the trust chosen on other blocks keeps it from moving the prediction: the error

@@ -16,10 +16,14 @@ module identifies it from the record and reads the reaction through it, as a mea
    identified controller's residual ``r_j = u[k+j] − ARX(…, ŷ, …)`` is then, to first order, the
    controller's response to the model's error: ``r_j = Σ_m b_m·e[k+j−m] + ε_j`` with
    ``e[k+i] = y[k+i] − ŷ[k+i]`` (zero up to ``k``).
-3. **The model's error, estimated** from ``r_1..r_h`` (the actuator signal up to the predicted
-   instant, the information the black box reads) by Gaussian conditioning: with ``Σ`` the model's own
-   error covariance over the horizon and ``B`` the lower-triangular Toeplitz matrix of the ``b_m``,
-   ``ê = Σ·Bᵀ·(B·Σ·Bᵀ + σ²·I)⁻¹·r``; the prediction is ``ŷ[k+h] + ê_h``. ``σ²`` is the controller's
+3. **The model's error, estimated** from ``r_1..r_{h−1}`` (the actuator signal up to the sample
+   before the predicted instant, :data:`READ_BEFORE`: the information a current measured at that
+   instant carries, which the black box reads; the actuator value of the predicted instant is
+   computed from the predicted reading itself wherever the controller has a direct feedthrough, and
+   reading it would read the answer) by Gaussian conditioning: with ``Σ`` the model's own
+   error covariance over the horizon and ``B`` the lower-triangular Toeplitz matrix of the ``b_m``
+   (its first ``h − 1`` rows), ``ê_h = Σ_{h,·}·Bᵀ·(B·Σ·Bᵀ + σ²·I)⁻¹·r`` (:func:`last_error_gain`);
+   the prediction is ``ŷ[k+h] + ê_h``. ``σ²`` is the controller's
    one-step residual variance (the larger of its own and, fitted on half of its samples, on the
    other half's) times a trust factor.
 
@@ -60,6 +64,9 @@ TRUST = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0, 1e3, 1e4)
 EXCITATION = 1e-10
 #: Samples skipped at a record's start, while the filter that makes the trajectories settles [s].
 SETTLE_S = 0.2
+#: The prediction of the reading ``h`` samples ahead reads the actuator signal up to this many
+#: samples before the predicted instant (the reactions ``r_1..r_{h−READ_BEFORE}``).
+READ_BEFORE = 1
 
 
 @dataclass
@@ -165,11 +172,30 @@ def reaction_gain(b: np.ndarray, cov: np.ndarray, var: float) -> np.ndarray:
     covariance over the horizon (h × h), ``b`` the controller's coefficients on y, ``var`` its
     residual variance."""
     h = len(cov)
+    B = _toeplitz(b, h)
+    S = B @ cov @ B.T + var * np.eye(h)
+    return np.linalg.solve(S, B @ cov).T
+
+
+def _toeplitz(b: np.ndarray, h: int) -> np.ndarray:
+    """The lower-triangular Toeplitz matrix (h × h) of the controller's coefficients on y:
+    ``r = B·e`` (module docstring, step 2)."""
     B = np.zeros((h, h))
     for m, bm in enumerate(b[:h]):
         B[np.arange(m, h), np.arange(0, h - m)] = bm
-    S = B @ cov @ B.T + var * np.eye(h)
-    return np.linalg.solve(S, B @ cov).T
+    return B
+
+
+def last_error_gain(b: np.ndarray, cov: np.ndarray, var: float, seen: int) -> np.ndarray:
+    """The gain ``g`` (``seen``) with ``ê_h = g·r[:seen]``: the model's error at the last step
+    ``h = len(cov)`` estimated from the first ``seen`` reactions only (Gaussian conditioning as in
+    :func:`reaction_gain`; ``seen = h`` gives its last row)."""
+    h = len(cov)
+    if seen <= 0:
+        return np.zeros(0)
+    B = _toeplitz(b, h)[:seen]
+    S = B @ cov @ B.T + var * np.eye(seen)
+    return np.linalg.solve(S, B @ cov[:, h - 1])
 
 
 @dataclass
@@ -299,8 +325,8 @@ def predict(y: np.ndarray, u: np.ndarray, w: np.ndarray | None, traj: np.ndarray
             for g in (TRUST if identified else ()):
                 sq = 0.0
                 for sub, at, r in inner:
-                    k_h = reaction_gain(sub.b, cov, g * var)[h - 1]
-                    sq += float(np.sum((E[at, h - 1] - r[:, :h] @ k_h) ** 2))
+                    k_h = last_error_gain(sub.b, cov, g * var, h - READ_BEFORE)
+                    sq += float(np.sum((E[at, h - 1] - r[:, :h - READ_BEFORE] @ k_h) ** 2))
                 rms = float(np.sqrt(sq / len(E)))
                 if rms < best:
                     best, chosen = rms, g
@@ -308,6 +334,6 @@ def predict(y: np.ndarray, u: np.ndarray, w: np.ndarray | None, traj: np.ndarray
             fit_rms[q][1 - f] = {"model": own, "corrected": best}
             pred = traj[use_k, h].copy()
             if chosen is not None:
-                pred += r_use[:, :h] @ reaction_gain(ctl.b, cov, chosen * var)[h - 1]
+                pred += r_use[:, :h - READ_BEFORE] @ last_error_gain(ctl.b, cov, chosen * var, h - READ_BEFORE)
             out[q, use_k + h] = pred
     return ReactionPrediction(tuple(int(h) for h in horizons), out, trust, ctls, fit_rms, identifies, orders)
