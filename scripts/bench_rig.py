@@ -130,7 +130,9 @@ def across_profiles(res_dir: Path, out: Path) -> tuple[str, float]:
                      f"current from the PWM duty: median {statistics.median(fits):.1f} %, worst {min(fits):.1f} %"
                      if fits else "no measured current"])
     body = ("The model calibrated on every shared record of one reference profile and judged on every record of "
-            "the other, both ways (the judged records use profiles the shared folder lacks). Median skill "
+            "the other, both ways (the judged records use profiles the shared folder lacks; the two step/PID "
+            "records, whose gap is the Kalman filter's estimate, are judged but not calibrated on: "
+            "`real_rig.information`). Median skill "
             "against 'stays put' over the validation segments (worst in brackets) of the model in closed loop "
             "with the identified controller and of the black-box baseline fitted on the same calibration "
             "records. The commands it runs are equivalent to:\n\n```\nI=../shared/data/real/inteco-mls2em/results\n"

@@ -62,10 +62,10 @@ def test_every_command_on_the_page_runs_and_gives_the_quoted_figures(tmp_path):
     assert len(commands) == 7
     assert outputs[2].startswith("columns 6000 0.002 []")
     assert "verdict: no effect" in outputs[3] and ("current fit 92.1 % (the measured current's own noise, 3.0 mA RMS white, limits it to about 92.0 %), "
-                                                  "skill at 20 ms +0.77") in outputs[3]
+                                                  "skill at 20 ms +0.76") in outputs[3]
     # the closed loop with the identified controller ahead of the black box at 50 ms, the model
     # driven by the duty alone behind it
-    assert "calibration (1)  50 ms: +0.84 / +0.65 / +0.72 /" in outputs[3]
+    assert "calibration (1)  50 ms: +0.83 / +0.65 / +0.72 /" in outputs[3]
     d = json.loads((tmp_path / "runs" / "x200" / "diagnosis.json").read_text())
     (seg,) = d["records"][0]["segments"]
     assert round(seg["before"]["current"]["from_actuator"]) == 25 and round(seg["after"]["current"]["from_actuator"]) == 92

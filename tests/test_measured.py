@@ -153,11 +153,20 @@ def test_levitador_record_has_its_drops_found():
 
 
 @need_real
-def test_a_record_that_logged_the_filter_estimate_as_the_gap_is_flagged():
+def test_a_record_that_logged_the_filter_estimate_as_the_gap_is_flagged_and_not_calibrated_on():
+    """Its segments are judged, not calibrated on (real_rig.information); a record with the sensor's
+    reading, whose gap moves 3-20 um in 20 ms, is not refused for its quantisation (1.5 um)."""
+    from maglev_cosim.diagnosis import real_rig
+
+    rig = load_rig("inteco-mls2em")
     m = read_inteco_mat(INTECO.parent / "results" / "step" / "PID_anti_windup - KF.mat")
-    assert any("Kalman filter's gap" in w for w in m.warnings)
+    assert any("Kalman filter's gap" in w for w in m.warnings) and m.metadata["position_source"] == "estimate"
+    segs = real_rig.prepare(rig, m)
+    assert segs and all(s.estimate for s in segs)
+    assert all(any("judged, not calibrated on" in w for w in real_rig.information(rig, s)) for s in segs)
     m = read_inteco_mat(INTECO.parent / "results" / "step" / "MPC - KF.mat")
-    assert not any("Kalman" in w for w in m.warnings)
+    assert not any("Kalman" in w for w in m.warnings) and "position_source" not in m.metadata
+    assert all(real_rig.information(rig, s) == [] for s in real_rig.prepare(rig, m))
 
 
 @need_real

@@ -217,6 +217,7 @@ def read_inteco_mat(path: str | Path, *, coil: int = 1, resample: bool = False) 
     z_hat = m.extra.get("z_hat")
     if z_hat is not None and np.array_equal(m.position, z_hat):
         # step/PID_* of the shared data: what the PID saw was logged in place of the sensor
+        m.metadata["position_source"] = "estimate"
         m.warnings.append("the gap (logouts row 2) equals the Kalman filter's gap (row 8) sample for sample: "
                           "this record holds the filter's estimate, not the sensor's reading, so its 'sensor "
                           "noise' is the filter's and its position lags the ball by the filter's dynamics")

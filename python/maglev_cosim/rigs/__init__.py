@@ -72,6 +72,9 @@ class Rig:
     params: PlantParams             #: the plant's parameters (x_start: the ball on its lower rest)
     position_scale: float = 1.0     #: for a ``position`` sensor: metres per MU of the plant's reading
     resolution: float | None = None  #: the record position's quantisation step [m], when stated
+    #: the sensor noise [m] the filter's disturbance model starts from (the calibration fits it),
+    #: when stated; else the quantisation step
+    sensor_noise: float | None = None
     sensor_table: tuple[np.ndarray, np.ndarray] | None = None  #: (volts, position [m]) calibration
     sources: dict[str, str] = field(default_factory=dict)
 
@@ -296,6 +299,7 @@ def _build(path: Path, d: _Doc) -> Rig:
     scale, table, resolution = 1.0, None, None
     if d.has("sensor.resolution"):
         resolution = d.number("sensor.resolution", "m", lo=0.0, lo_open=True, hi=0.01)
+    sensor_noise = d.number("sensor.noise", "m", lo=0.0, lo_open=True, hi=0.01) if d.has("sensor.noise") else None
     if d.has("sensor.table.volts") or d.has("sensor.table.position"):
         volts, pos = d.array("sensor.table.volts"), d.array("sensor.table.position")
         if len(volts) != len(pos):
@@ -336,4 +340,5 @@ def _build(path: Path, d: _Doc) -> Rig:
         raise RigError(path, "", f"the plant refuses the resulting parameters: {e}") from None
     return Rig(name=name, path=path, description=description, ts=ts, convention=conv, stops=(lo, hi),
                drive=drive, input_unit=unit, input_range=in_range, sensor=sensor, params=params,
-               position_scale=scale, resolution=resolution, sensor_table=table, sources=dict(sources))
+               position_scale=scale, resolution=resolution, sensor_noise=sensor_noise, sensor_table=table,
+               sources=dict(sources))
