@@ -131,7 +131,7 @@ def test_the_effect_search_json_keeps_the_keys_of_diagnosis_json(stages):
     s = stages["search"]
     d = s.to_json()
     assert list(d) == ["held_out_cost", "block_s", "min_gain", "offered", "skipped", "candidates", "selected",
-                       "parameters", "computed", "last_round_empty"]
+                       "parameters", "computed", "last_round_empty", "taken_off"]
     assert set(d["held_out_cost"]) == {"y", "i", "total"} and d["block_s"] == real_rig.EFFECT_BLOCK_S
     assert len(d["candidates"]) == len(s.candidates) > 0 and all(c["round"] == 1 for c in d["candidates"])
     for c, t in zip(d["candidates"], s.candidates):

@@ -326,3 +326,29 @@ def test_the_calibration_of_emulated_records_finds_the_model_that_made_them(tmp_
     v = RigComparison.from_json(res["comparison"]).get("validation")
     for h, s in v.horizons.items():
         assert s.model > s.black_box - 0.05, (h, s.model, s.black_box)
+
+
+def test_an_effect_the_joint_refit_takes_to_off_leaves_instead_of_failing_the_calibration():
+    """The search selected a force lag and a damping; the joint refit with the force law ended the
+    damping on the low end of its range (0.0018 N·s/m, multisteps_stairs/MPC alone): it leaves the
+    selection, off, and is no longer a bound the verdict reads as a failed calibration. The lag,
+    inside its range, stays; so does a bound an effect's parameter reached at its high end."""
+    from maglev_cosim.diagnosis.rig_result import RigCalibration, RigSearch
+
+    ranges = {"T_F": (0.0, 0.05, 0.005), "k_FV": (0.0, 10.0, 1.0)}
+
+    def run(k_fv: float, on_bounds: list[str]) -> tuple[list[str], RigSearch, RigCalibration]:
+        search = RigSearch(held_out_cost={}, block_s=1.0, min_gain=0.1, offered={}, skipped=[],
+                           selected=["force_lag", "damping"], parameters={"T_F": 4.5e-4, "k_FV": k_fv})
+        cal = RigCalibration(names=["k_e", "T_F", "k_FV"], values={"k_e": 2.6, "T_F": 4.5e-4, "k_FV": k_fv},
+                             rig_values={}, noise={}, sigma={}, horizons_s=[], cost_before=1.0, cost_after=0.5,
+                             evaluations=10, on_bounds=list(on_bounds), noise_on_bounds=[])
+        return real_rig.refit_took_off(search, cal, ranges), search, cal
+
+    faded, search, cal = run(0.0018, ["k_FV"])
+    assert faded == ["damping"] and search.selected == ["force_lag"] and search.taken_off == {"k_FV": 0.0018}
+    assert cal.on_bounds == [] and cal.values["k_FV"] == 0.0 and search.parameters == {"T_F": 4.5e-4}
+    faded, search, cal = run(9.995, ["k_FV"])          # on its high end: a bound, not off
+    assert faded == [] and search.selected == ["force_lag", "damping"] and cal.on_bounds == ["k_FV"]
+    faded, search, cal = run(0.5, [])                   # inside its range
+    assert faded == [] and search.selected == ["force_lag", "damping"]

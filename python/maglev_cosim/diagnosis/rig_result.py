@@ -294,6 +294,9 @@ class RigSearch:
         Values the selected effects computed from the records (the force exponent's pivot) [SI].
     last_round_empty : bool
         Whether the last round selected nothing.
+    taken_off : dict of str to float
+        Parameters of effects the search selected and the joint refit with the force law took to off,
+        with the value the refit ended on [SI] (:func:`~.real_rig.refit_took_off`).
     """
 
     held_out_cost: dict[str, float]
@@ -306,13 +309,14 @@ class RigSearch:
     parameters: dict[str, float] = field(default_factory=dict)
     computed: dict[str, float] = field(default_factory=dict)
     last_round_empty: bool = False
+    taken_off: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> Json:
         return {"held_out_cost": dict(self.held_out_cost), "block_s": self.block_s, "min_gain": self.min_gain,
                 "offered": dict(self.offered), "skipped": list(self.skipped),
                 "candidates": [c.to_json() for c in self.candidates], "selected": list(self.selected),
                 "parameters": dict(self.parameters), "computed": dict(self.computed),
-                "last_round_empty": self.last_round_empty}
+                "last_round_empty": self.last_round_empty, "taken_off": dict(self.taken_off)}
 
 
 @dataclass
