@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import scipy.io
 
+from maglev_cosim.diagnosis import real_rig
 from maglev_cosim.records.measured import levitation_segments, read_inteco_mat, read_levitador, read_measured
 from maglev_cosim.records.record import RecordError
 from maglev_cosim.rigs import load_rig
@@ -156,8 +158,6 @@ def test_levitador_record_has_its_drops_found():
 def test_a_record_that_logged_the_filter_estimate_as_the_gap_is_flagged_and_not_calibrated_on():
     """Its segments are judged, not calibrated on (real_rig.information); a record with the sensor's
     reading, whose gap moves 3-20 um in 20 ms, is not refused for its quantisation (1.5 um)."""
-    from maglev_cosim.diagnosis import real_rig
-
     rig = load_rig("inteco-mls2em")
     m = read_inteco_mat(INTECO.parent / "results" / "step" / "PID_anti_windup - KF.mat")
     assert any("Kalman filter's gap" in w for w in m.warnings) and m.metadata["position_source"] == "estimate"
@@ -475,8 +475,6 @@ def test_formats_are_told_by_content_not_by_name(tmp_path):
 def test_a_row_the_diagnosis_does_not_need_may_be_missing_but_not_one_it_needs(tmp_path):
     """A logouts file whose other coil's current is NaN is read without that row (a warning names
     it); one whose measured current is NaN is refused with the row and sample."""
-    import scipy.io
-
     n = 400
     t = np.arange(n) * 1e-3
     L = np.zeros((14, n))

@@ -9,7 +9,8 @@ import pytest
 from maglev_cosim.plant import fast, formulas
 from maglev_cosim.loop import fast_loop
 from maglev_cosim.diagnosis import real_rig
-from maglev_cosim.diagnosis.rig_result import RigComparison
+from maglev_cosim.diagnosis import diagnose
+from maglev_cosim.diagnosis.rig_result import RigCalibration, RigComparison, RigSearch
 from maglev_cosim.loop.controllers import load_controller
 from maglev_cosim.diagnosis import blackbox as bb
 from maglev_cosim.records.measured import Segment
@@ -312,8 +313,6 @@ def test_the_calibration_of_emulated_records_finds_the_model_that_made_them(tmp_
     the calibration's cost on the gap 20 and 50 ms ahead only, the actuator signal's reaction to what
     the filter cannot see made it take a filter that ignores the readings (a force lag on its bound
     here: 5 ms skill -1.0 on such a sine) and effects none of the records had: real_rig.CAL_HORIZONS_S."""
-    from maglev_cosim.diagnosis import diagnose
-
     rig = load_rig("inteco-mls2em")
     t = np.arange(8000) * 1e-3
     square = np.where((t // 1.0) % 2 == 0, 0.010, 0.0085)
@@ -333,8 +332,6 @@ def test_an_effect_the_joint_refit_takes_to_off_leaves_instead_of_failing_the_ca
     damping on the low end of its range (0.0018 N·s/m, multisteps_stairs/MPC alone): it leaves the
     selection, off, and is no longer a bound the verdict reads as a failed calibration. The lag,
     inside its range, stays; so does a bound an effect's parameter reached at its high end."""
-    from maglev_cosim.diagnosis.rig_result import RigCalibration, RigSearch
-
     ranges = {"T_F": (0.0, 0.05, 0.005), "k_FV": (0.0, 10.0, 1.0)}
 
     def run(k_fv: float, on_bounds: list[str]) -> tuple[list[str], RigSearch, RigCalibration]:
