@@ -9,7 +9,7 @@ import pytest
 
 from maglev_cosim.diagnosis import blackbox as bb
 from maglev_cosim.diagnosis import reaction
-from maglev_cosim.diagnosis.reaction import LinearController, reaction_gain
+from maglev_cosim.diagnosis.reaction import LinearController, last_error_gain
 from maglev_cosim.diagnosis.replay import _settled_at_first_reading, baseline_params, estimate_noise
 from maglev_cosim.plant import fast
 from maglev_cosim.records.record import read_record
@@ -75,18 +75,26 @@ def test_the_reaction_gain_inverts_an_exact_controller_and_ignores_a_useless_one
     B = np.zeros((h, h))
     for m, bm in enumerate(b):
         B += bm * np.eye(h, k=-m)
-    assert reaction_gain(b, cov, 1e-12) @ (B @ e) == pytest.approx(e, abs=1e-6)
-    assert np.abs(reaction_gain(b, cov, 1e12) @ (B @ e)).max() < 1e-9
+    assert last_error_gain(b, cov, 1e-12, h) @ (B @ e) == pytest.approx(e[-1], abs=1e-6)
+    assert abs(last_error_gain(b, cov, 1e12, h) @ (B @ e)) < 1e-9
 
 
-def test_the_last_error_gain_is_the_reaction_gain_s_last_row_or_reads_fewer_reactions():
+def test_the_last_error_gain_from_fewer_reactions_cannot_read_the_last_error_exactly():
+    """Without the last reaction (the only one that holds b_0·e_h), an exact controller no longer
+    gives the last error back; it is estimated from its covariance with the earlier ones."""
     rng = np.random.default_rng(6)
     h, b = 6, np.array([2.0, -1.0, 0.3])
     A = rng.normal(size=(h, h))
     cov = A @ A.T + np.eye(h)
-    assert reaction.last_error_gain(b, cov, 0.1, h) == pytest.approx(reaction_gain(b, cov, 0.1)[h - 1])
-    g = reaction.last_error_gain(b, cov, 0.1, h - 1)
-    assert g.shape == (h - 1,) and reaction.last_error_gain(b, cov, 0.1, 0).shape == (0,)
+    B = sum(bm * np.eye(h, k=-m) for m, bm in enumerate(b))
+    errs = rng.multivariate_normal(np.zeros(h), cov, size=4000)
+    r = errs @ B.T
+    g = last_error_gain(b, cov, 1e-12, h - 1)
+    assert g.shape == (h - 1,) and last_error_gain(b, cov, 0.1, 0).shape == (0,)
+    left = errs[:, -1] - r[:, :h - 1] @ g
+    # what is left is the last error's part the earlier ones do not carry: its conditional variance
+    want = cov[-1, -1] - cov[-1, :-1] @ np.linalg.solve(cov[:-1, :-1], cov[:-1, -1])
+    assert np.var(left) == pytest.approx(want, rel=0.1) and want > 0.05 * cov[-1, -1]
 
 
 def test_the_prediction_does_not_read_the_actuator_value_computed_from_the_predicted_reading(monkeypatch):

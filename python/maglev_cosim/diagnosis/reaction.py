@@ -167,16 +167,6 @@ class LinearController:
                 "residual_var": self.residual_var, "samples": self.samples}
 
 
-def reaction_gain(b: np.ndarray, cov: np.ndarray, var: float) -> np.ndarray:
-    """The gain ``K`` (h × h) with ``ê = K·r`` (module docstring, step 3): ``cov`` the model's error
-    covariance over the horizon (h × h), ``b`` the controller's coefficients on y, ``var`` its
-    residual variance."""
-    h = len(cov)
-    B = _toeplitz(b, h)
-    S = B @ cov @ B.T + var * np.eye(h)
-    return np.linalg.solve(S, B @ cov).T
-
-
 def _toeplitz(b: np.ndarray, h: int) -> np.ndarray:
     """The lower-triangular Toeplitz matrix (h × h) of the controller's coefficients on y:
     ``r = B·e`` (module docstring, step 2)."""
@@ -187,9 +177,10 @@ def _toeplitz(b: np.ndarray, h: int) -> np.ndarray:
 
 
 def last_error_gain(b: np.ndarray, cov: np.ndarray, var: float, seen: int) -> np.ndarray:
-    """The gain ``g`` (``seen``) with ``ê_h = g·r[:seen]``: the model's error at the last step
-    ``h = len(cov)`` estimated from the first ``seen`` reactions only (Gaussian conditioning as in
-    :func:`reaction_gain`; ``seen = h`` gives its last row)."""
+    """The gain ``g`` (``seen``) with ``ê_h = g·r[:seen]`` (module docstring, step 3): the model's
+    error at the last step ``h = len(cov)`` estimated from the first ``seen`` reactions by Gaussian
+    conditioning; ``cov`` the model's error covariance over the horizon (h × h), ``b`` the
+    controller's coefficients on y, ``var`` its residual variance."""
     h = len(cov)
     if seen <= 0:
         return np.zeros(0)

@@ -1192,7 +1192,7 @@ def effect_search(rig: Rig, records: Sequence[RigRecord], params: PlantParams, s
     entry of :data:`~.effects.CATALOGUE` that applies, and the real-rig extras) tried on its calibrated
     model, in greedy rounds: each effect not yet selected is fitted on the even held-out blocks and
     judged on the odd ones by the prediction cost (:func:`prediction_cost`: the gap 5, 20 and 50 ms ahead,
-    the current 20 ms ahead) of the gap and of the current, each on its own (a mechanical effect shows
+    the current 5 ms ahead) of the gap and of the current, each on its own (a mechanical effect shows
     in the gap, an actuator effect in the current, and either is diluted in their sum).
 
     Every effect's start grid is costed first (all of them side by side); an effect none of whose starts
