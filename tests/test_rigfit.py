@@ -349,3 +349,5 @@ def test_an_effect_the_joint_refit_takes_to_off_leaves_instead_of_failing_the_ca
     assert faded == [] and search.selected == ["force_lag", "damping"] and cal.on_bounds == ["k_FV"]
     faded, search, cal = run(0.5, [])                   # inside its range
     assert faded == [] and search.selected == ["force_lag", "damping"]
+    faded, search, cal = run(0.0, [])                   # exactly at 0: not a bound the fit reports, but off
+    assert faded == ["damping"] and search.selected == ["force_lag"] and search.taken_off == {"k_FV": 0.0}

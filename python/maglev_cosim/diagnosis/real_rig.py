@@ -999,15 +999,16 @@ def rig_candidates(rig: Rig, records: Sequence[RigRecord], params: PlantParams, 
 
 def refit_took_off(search: RigSearch, cal: RigCalibration, ranges: dict[str, tuple[float, float, float]]
                    ) -> list[str]:
-    """The selected effects whose every parameter the joint refit (``cal``) ended on the low end of a
-    range that starts at 0 (off: a lag, a damping): removed from ``search`` (its selection and
-    values, ``search.taken_off``) and from ``cal.on_bounds``, so that the verdict does not read them as
-    a calibration that failed. Returns their names."""
+    """The selected effects whose every parameter the joint refit (``cal``) ended at or within 1e-3 of
+    its range from the low end of a range that starts at 0 (off: a lag, a damping): removed from
+    ``search`` (its selection and values, ``search.taken_off``) and from ``cal.on_bounds``, so that the
+    verdict neither reads them as a calibration that failed nor lists an effect at 0 as found.
+    Returns their names."""
     faded = []
     for e in list(search.selected):
         names = [n for n in _effect_params(e) if n in search.parameters]
-        if names and all(n in cal.on_bounds and n in ranges and ranges[n][0] == 0.0
-                         and cal.values[n] - ranges[n][0] < 1e-3 * (ranges[n][1] - ranges[n][0]) for n in names):
+        if names and all(n in ranges and ranges[n][0] == 0.0
+                         and cal.values[n] < 1e-3 * (ranges[n][1] - ranges[n][0]) for n in names):
             faded.append(e)
     for e in faded:
         search.selected.remove(e)
