@@ -107,6 +107,13 @@ def section(res: dict, command: str, wall_s: float) -> str:
     return "\n".join(lines)
 
 
+def _calibrate_command(cal: list[str], val: list[str], out: str) -> str:
+    """The ``maglev-cosim calibrate`` command line the run is equivalent to, for records named
+    ``profile/controller`` under ``$I``."""
+    return (".venv/bin/maglev-cosim calibrate " + " ".join(f'"$I/{n} - KF.mat"' for n in cal)
+            + "".join(f' --validate "$I/{n} - KF.mat"' for n in val) + f" --rig inteco-mls2em --out {out}")
+
+
 def across_profiles(res_dir: Path, out: Path) -> tuple[str, float]:
     """The model calibrated on every record of one profile and validated on every record of the
     other, both ways: the body of the section :data:`ACROSS_TITLE` and the wall time [s]."""
@@ -115,9 +122,8 @@ def across_profiles(res_dir: Path, out: Path) -> tuple[str, float]:
     for fit_on, judged in (("step", "multisteps_stairs"), ("multisteps_stairs", "step")):
         cal = [res_dir / fit_on / f"{c} - KF.mat" for c in PROFILES[fit_on]]
         val = [res_dir / judged / f"{c} - KF.mat" for c in PROFILES[judged]]
-        commands.append(".venv/bin/maglev-cosim calibrate " + " ".join(f'"$I/{fit_on}/{c} - KF.mat"' for c in PROFILES[fit_on])
-                        + "".join(f' --validate "$I/{judged}/{c} - KF.mat"' for c in PROFILES[judged])
-                        + f" --rig inteco-mls2em --out out/{fit_on}-to-{judged}")
+        commands.append(_calibrate_command([f"{fit_on}/{c}" for c in PROFILES[fit_on]],
+                                           [f"{judged}/{c}" for c in PROFILES[judged]], f"out/{fit_on}-to-{judged}"))
         res = diagnose(cal, rig="inteco-mls2em", validate=val, out=out / f"{fit_on}-to-{judged}",
                        progress=lambda m: print(f"[{time.perf_counter() - t0:6.1f} s] {m}", flush=True)).to_json()
         comp = RigComparison.from_json(res["comparison"]).get("validation")
@@ -162,10 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     res_dir = _data_dir(a.data) / "inteco-mls2em" / "results"
     cal = [res_dir / f"{n} - KF.mat" for n in CALIBRATION]
     val = [res_dir / f"{n} - KF.mat" for n in VALIDATION]
-    command = ("I=../shared/data/real/inteco-mls2em/results\n.venv/bin/maglev-cosim calibrate "
-               + " ".join(f'"$I/{n} - KF.mat"' for n in CALIBRATION)
-               + "".join(" --validate " + f'"$I/{n} - KF.mat"' for n in VALIDATION)
-               + " --rig inteco-mls2em --out out/inteco")
+    command = ("I=../shared/data/real/inteco-mls2em/results\n"
+               + _calibrate_command(list(CALIBRATION), list(VALIDATION), "out/inteco"))
     if a.second_force_lag:
         command += f"  # with real_rig.SECOND_FORCE_LAG_FIT = {a.second_force_lag!r} (--second-force-lag)"
     t0 = time.perf_counter()
