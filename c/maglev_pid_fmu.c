@@ -60,7 +60,8 @@ typedef struct {
 static MaglevPid settings(const Pid *c) {
     const double *v = c->v;
     MaglevPid p = {v[PID_ts], v[PID_kp], v[PID_ki], v[PID_kd], v[PID_u_min], v[PID_u_max], v[PID_tf],
-                   (int)v[PID_anti_windup], v[PID_i_lo], v[PID_i_hi], v[PID_backoff]};
+                   (int)v[PID_anti_windup], v[PID_i_lo], v[PID_i_hi], v[PID_backoff],
+                   0 /* the derivative of the error: the paper's Eq. 24, which this FMU implements */};
     return p;
 }
 

@@ -142,6 +142,7 @@ int maglev_pid_check(const MaglevPid *pid, char *msg, size_t len) {
         bad = "the band needs i_lo < i_hi, both finite (anti_windup 3)";
     else if (pid->anti_windup == 3 && !(pid->backoff > 0 && pid->backoff <= 1))
         bad = "the band needs 0 < backoff <= 1 (anti_windup 3)";
+    else if (pid->d_on_y != 0 && pid->d_on_y != 1) bad = "d_on_y must be 0 (derivative of the error) or 1 (of -y)";
     if (!bad) return 0;
     snprintf(msg, len, "PID: %s", bad);
     return -1;
@@ -160,14 +161,15 @@ double maglev_pid_step(const MaglevPid *pid, MaglevPidState *s, double w, double
         double lo = pid->backoff * pid->i_lo, hi = pid->backoff * pid->i_hi;
         integ = s->integral < lo ? lo : (s->integral > hi ? hi : s->integral);
     }
-    double d = pid->tf > 0 ? (pid->tf * s->d_prev + pid->kd * (e - s->e_prev)) / (pid->tf + pid->ts)
-                           : pid->kd * (e - s->e_prev) / pid->ts;
+    double de = pid->d_on_y ? -y : e; /* the derivative's argument */
+    double d = pid->tf > 0 ? (pid->tf * s->d_prev + pid->kd * (de - s->e_prev)) / (pid->tf + pid->ts)
+                           : pid->kd * (de - s->e_prev) / pid->ts;
     double raw = pid->kp * e + integ + d;
     double uk = raw < pid->u_min ? pid->u_min : (raw > pid->u_max ? pid->u_max : raw);
     if (pid->anti_windup == 1 && uk != raw && (raw - uk) * e > 0) integ = s->integral;
     if (pid->anti_windup == 2) integ = integ < pid->u_min ? pid->u_min : (integ > pid->u_max ? pid->u_max : integ);
     s->integral = integ;
-    s->e_prev = e;
+    s->e_prev = de;
     s->d_prev = d;
     return uk;
 }
@@ -220,6 +222,9 @@ static void ctl_start(const MaglevController *c, CtlState *s, double u_hold, con
     memset(s, 0, sizeof *s);
     s->outer.integral = c->kind == 1 ? x0[2] : u_hold;
     s->inner.integral = u_hold;
+    /* a derivative of -y starts settled at the first reference (outer) and the start current (inner) */
+    s->outer.e_prev = c->pid.d_on_y ? -w0 : 0.0;
+    s->inner.e_prev = c->kind == 1 && c->inner.d_on_y ? -x0[2] : 0.0;
     if (c->kind == 2) {
         for (int j = 0; j < 3; j++) s->xh[j] = x0[j] - c->x_eq[j];
         s->q = c->k_int != 0 ? (sf_raw(c, s, w0) - u_hold) / c->k_int : 0.0;

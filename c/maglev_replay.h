@@ -18,13 +18,16 @@ typedef struct {
     double tf;       /* derivative filter time constant [s], 0 = off */
     int anti_windup; /* 0 none, 1 conditional integration, 2 clamping, 3 band */
     double i_lo, i_hi, backoff; /* the band (anti_windup 3): i_lo < i_hi, 0 < backoff <= 1 */
+    int d_on_y;      /* 0: the derivative of the error e (Eq. 24); 1: of -y alone, as PIDs that spare the
+                        output a kick at each reference step compute it (last: a zeroed tail is Eq. 24) */
 } MaglevPid;
 
-/* The PID's memory between samples: integrator I[k-1], error e[k-1], derivative term D[k-1].
- * Settled start: integral = the holding input, e_prev = d_prev = 0. */
+/* The PID's memory between samples: integrator I[k-1], the derivative's argument at k-1 (e[k-1], or
+ * -y[k-1] with d_on_y), derivative term D[k-1]. Settled start: integral = the holding input,
+ * d_prev = 0, e_prev = 0 (or -w[0] with d_on_y: the reading was at the first reference, as e = 0 says). */
 typedef struct { double integral, e_prev, d_prev; } MaglevPidState;
 
-/* Checks a PID's settings (finite, ts > 0, u_min < u_max, tf >= 0, anti_windup 0 to 3, the band).
+/* Checks a PID's settings (finite, ts > 0, u_min < u_max, tf >= 0, anti_windup 0 to 3, the band, d_on_y 0 or 1).
  * Returns 0, or -1 with a message naming the first setting that is wrong. */
 int maglev_pid_check(const MaglevPid *pid, char *msg, size_t msglen);
 

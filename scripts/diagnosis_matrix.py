@@ -449,7 +449,8 @@ def main() -> None:
                     help="the records' emulator: rig (default) or ivp, the independent one written from the paper "
                          "(the matrix then skips the rows with effects it does not have)")
     ap.add_argument("--setting", action="append", default=[], metavar="NAME=VALUE",
-                    help="with --emulator ivp: one of its settings (pid_offset, f_y, method, rtol), repeatable")
+                    help="with --emulator ivp: one of its settings (emulator_ivp.SETTINGS: pid_offset, f_y, method, rtol, "
+                         "pid_tf, pid_derivative), repeatable")
     ap.add_argument("--limits", type=int, default=None, metavar="L",
                     help="with --family: a current limit on the first L draws (default: as --power)")
     ap.add_argument("--friction", type=int, default=None, metavar="F",
@@ -472,7 +473,7 @@ def main() -> None:
 
         from maglev_cosim.records import emulator_ivp
 
-        settings = {k.strip(): (v.strip() if k.strip() == "method" else float(v))
+        settings = {k.strip(): (v.strip() if k.strip() in emulator_ivp.WORD_SETTINGS else float(v))
                     for k, v in (item.split("=", 1) for item in a.setting)}
         SYNTH, supported = partial(emulator_ivp.synth_record, settings=settings), set(emulator_ivp.EFFECTS)
         POWER_CASES = {k: v for k, v in POWER_CASES.items() if set(v) <= supported}

@@ -81,6 +81,7 @@ def test_linear_discrete_closed_loop_is_stable_and_its_bandwidth():
 @pytest.mark.parametrize("cfg", [
     PID(), PID(tf=2e-3), PID(anti_windup="conditional"), PID(anti_windup="clamping", tf=1e-3),
     PID(ts=1e-2, kp=1.2, ki=8.0, kd=0.02, u_min=-0.5, u_max=0.8, anti_windup="clamping"),
+    PID(derivative="measurement"), PID(derivative="measurement", tf=1e-3, anti_windup="conditional"),
 ])
 def test_the_c_pid_and_the_python_pid_are_one_equation(cfg):
     """The difference equation exists twice, in C (the fast path) and in Python (the FMU and
@@ -89,10 +90,25 @@ def test_the_c_pid_and_the_python_pid_are_one_equation(cfg):
     w = 0.4 + 0.3 * np.sign(np.sin(np.arange(3000) / 150.0))
     y = 0.4 + 0.05 * rng.standard_normal(3000)
     c = fast_loop.pid_only(cfg, w, y, u_hold=0.37)
-    ctl = cfg.start(0.37)
+    ctl = cfg.start(0.37, w[0])
     py = np.array([ctl.step(a, b) for a, b in zip(w, y)])
     assert np.mean(c == cfg.u_max) > 0.01 and np.mean(c == cfg.u_min) > 0.01   # both limits reached
     assert np.array_equal(c, py)
+
+
+def test_the_derivative_of_the_reading_spares_the_output_the_kick_of_a_reference_step():
+    """``derivative="measurement"`` differentiates -y alone: at a reference step of dw the output
+    lacks the error form's kd*dw/ts, at every other sample the two are one; settled at the first
+    reference, the first sample gives the holding input."""
+    w = np.r_[np.full(5, 0.4), np.full(5, 0.45)]
+    y = 0.4 + 1e-3 * np.arange(10)
+    err, meas = PID(u_min=-10, u_max=10), PID(u_min=-10, u_max=10, derivative="measurement")
+    ue, um = fast_loop.pid_only(err, w, y, u_hold=0.3), fast_loop.pid_only(meas, w, y, u_hold=0.3)
+    assert um[0] == pytest.approx(0.3, abs=1e-12)
+    assert ue[5] - um[5] == pytest.approx(0.01 * 0.05 / 1e-3)
+    assert np.allclose(np.delete(ue - um, 5), 0.0, atol=1e-12)
+    with pytest.raises(ValueError, match="derivative must be one of error, measurement"):
+        PID(derivative="setpoint")
 
 
 def test_clamping_keeps_the_integrator_within_the_limits():

@@ -323,7 +323,7 @@ int main(int argc, char **argv) {
         else fmu_set(&plant, name, number(eq + 1));
     }
     MaglevPid pid = {pid_v[0], pid_v[1], pid_v[2], pid_v[3], pid_v[5], pid_v[6], pid_v[4], (int)pid_v[7],
-                     pid_v[8], pid_v[9], pid_v[10]};
+                     pid_v[8], pid_v[9], pid_v[10], 0};
     char msg[256];
     if (maglev_pid_check(&pid, msg, sizeof msg)) die("PID: %s", msg);
     double ts = pid.ts, u_hold = pid_v[11], w0 = pid_v[12], w1 = pid_v[13], t_step = pid_v[14];

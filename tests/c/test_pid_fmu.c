@@ -109,7 +109,7 @@ static void test_samples_match_the_controller_alone(void) {
     MaglevController ctl;
     memset(&ctl, 0, sizeof ctl);
     ctl.kind = 0;
-    MaglevPid p = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.002, 1, 0.0, 0.0, 1.0};
+    MaglevPid p = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.002, 1, 0.0, 0.0, 1.0, 0};
     ctl.pid = p;
     char msg[256];
     CHECK(maglev_replay_control(&ctl, w, y, NULL, N, 0.37, NULL, u_ref, msg, sizeof msg) == 0, "%s", msg);

@@ -109,7 +109,7 @@ static void test_coloured_sensor_noise(void) {
     MaglevPoint pt;
     char msg[256];
     settled(p, &pt);
-    MaglevPid pid = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.0, 0, 0, 0, 1};
+    MaglevPid pid = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.0, 0, 0, 0, 1, 0};
     MaglevController ctl = {.kind = 0, .pid = pid};
     static double w[N], u[N], y[N], yn[N], yp[N], up[N], e[N], s[N], e0[N], s0[N], ip[N], de[N], ds[N];
     for (int k = 0; k < N; k++) w[k] = pt.y + (k > 300 ? 0.04 : 0.0) - (k > 900 ? 0.07 : 0.0);
@@ -176,6 +176,29 @@ static void test_coloured_sensor_noise(void) {
     }
 }
 
+/* The derivative of the reading alone (d_on_y): a reference step moves the output by kp*dw and the
+ * integrator's ki*ts*e alone (no kd*dw/ts kick), while at every other sample both forms give the same
+ * output; the start is settled at the first reference (no kick at the first sample either); a d_on_y
+ * other than 0 or 1 is refused naming it. */
+static void test_derivative_of_the_reading(void) {
+    char msg[256];
+    MaglevPid pe = {1e-3, 2.0, 2.97, 0.01, -10.0, 10.0, 0.0, 0, 0, 0, 1, 0}, pm = pe;
+    pm.d_on_y = 1;
+    MaglevController ce = {.kind = 0, .pid = pe}, cm = {.kind = 0, .pid = pm};
+    enum { M = 6 };
+    const double w[M] = {0.4, 0.4, 0.45, 0.45, 0.45, 0.45}, y[M] = {0.4, 0.401, 0.402, 0.404, 0.404, 0.403};
+    double ue[M], um[M];
+    CHECK(maglev_replay_control(&ce, w, y, NULL, M, 0.3, NULL, ue, msg, sizeof msg) == 0, "%s", msg);
+    CHECK(maglev_replay_control(&cm, w, y, NULL, M, 0.3, NULL, um, msg, sizeof msg) == 0, "%s", msg);
+    CHECK(fabs(um[0] - 0.3) < 1e-12, "derivative of the reading: settled start gives u_hold, got %.15g", um[0]);
+    /* the step at k = 2: the error form kicks by kd*0.05/ts = 0.5, the reading's does not */
+    CHECK(fabs((ue[2] - um[2]) - 0.01 * 0.05 / 1e-3) < 1e-9, "kick at the step: %.15g", ue[2] - um[2]);
+    for (int k = 0; k < M; k++)
+        if (k != 2) CHECK(fabs(ue[k] - um[k]) < 1e-12, "still reference, sample %d: %.15g", k, ue[k] - um[k]);
+    pm.d_on_y = 2;
+    CHECK(maglev_pid_check(&pm, msg, sizeof msg) == -1 && strstr(msg, "d_on_y"), "d_on_y 2 refused: %s", msg);
+}
+
 int main(void) {
     double p[MAGLEV_NPARAMS];
     MaglevPoint pt;
@@ -183,7 +206,7 @@ int main(void) {
     settled(p, &pt);
     params_with(p, VR_T_F, 1e-3);   /* the lags and the delay do not move the operating point */
     params_with(p, VR_T_d, 2.5e-3);
-    MaglevPid pid = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.0, 0, 0, 0, 1};
+    MaglevPid pid = {1e-3, 2.0, 2.97, 0.01, 0.0, 1.0, 0.0, 0, 0, 0, 1, 0};
     MaglevController ctl = {.kind = 0, .pid = pid};
     static double w[N], u[N], y[N], yp[N], up[N], e[N], s[N];
     for (int k = 0; k < N; k++) w[k] = pt.y + (k > 300 ? 0.04 : 0.0) - (k > 900 ? 0.07 : 0.0);
@@ -325,6 +348,7 @@ int main(void) {
               strstr(msg, "k_c"), "%s", msg);
 
     test_other_controllers();
+    test_derivative_of_the_reading();
     test_coloured_sensor_noise();
     printf("%d checks, %d failures\n", checks, failures);
     return failures ? 1 : 0;

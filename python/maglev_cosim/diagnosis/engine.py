@@ -32,6 +32,7 @@ from ..records.measured import Measured
 from ..records.record import Record
 from ..rigs import Rig, load_rig
 from . import joint, pipeline, real_rig
+from .controller_form import identified
 from .ce152_report import write_calibrated_fmu, write_report
 from .compare import black_box_predictions, compare
 from .result import CalibratedFmu, DiagnosisResult, RecordRef, from_ce152, from_rig
@@ -124,10 +125,11 @@ def diagnose(record_or_records: Records | Sequence[Records], *, rig: Rig | str |
 
 
 def _ce152(r: Recording, *, effects, out, progress, workers, fmu, start, json_name: str) -> DiagnosisResult:
-    rec = r.ce152
     say = progress or (lambda s: None)
     names = None if effects is None or effects is True else ([] if effects is False else list(effects))
     fmu_in = ensure_fmu(fmu) if out is not None else None       # a missing FMU fails before the diagnosis
+    # the declared PID as the record shows it ran (its derivative filter): every stage replays it
+    rec, _ = identified(r.ce152, say)
     say(f"diagnosing {rec.path}: {rec.n} samples, {rec.duration:.2f} s")
     # The black boxes need no model: they are fitted on a thread of their own once the search has
     # ended (no worker is forked after it), beside the verdict's estimates, which leave a core idle
@@ -160,7 +162,7 @@ def _ce152_joint(recs: list[Recording], held: list[Recording], *, effects, out, 
                  json_name: str) -> DiagnosisResult:
     names = None if effects is None or effects is True else ([] if effects is False else list(effects))
     fmu_in = ensure_fmu(fmu) if out is not None else None
-    train, judged = [r.ce152 for r in recs], [r.ce152 for r in held]
+    train, judged = [identified(r.ce152, progress)[0] for r in recs], [identified(r.ce152, progress)[0] for r in held]
     j = joint.run(train, judged, effects=names, workers=workers, progress=progress)
     if out is None:
         return joint.result(j, train, judged)

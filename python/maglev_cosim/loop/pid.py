@@ -19,6 +19,9 @@ if TYPE_CHECKING:   # python-control (and the matplotlib.pyplot it loads: half a
     import control  # used: a diagnosis needs none of it
 
 ANTI_WINDUP = ("none", "conditional", "clamping", "band")
+#: What the derivative term differentiates: the error (Eq. 24) or the reading alone (no kick of
+#: the output at a reference step; C ``d_on_y``).
+DERIVATIVE = ("error", "measurement")
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,9 @@ class PID:
         The band [MU] (``anti_windup="band"``).
     backoff : float
         Where the band pulls the integrator back to, as a fraction of its limits (0, 1].
+    derivative : {"error", "measurement"}
+        ``error``: the paper's derivative of ``e = w - y`` (Eq. 24); ``measurement``: of ``-y``
+        alone, as many PIDs compute it to spare the output a kick at each reference step.
 
     Examples
     --------
@@ -65,6 +71,7 @@ class PID:
     i_lo: float = 0.0
     i_hi: float = 0.0
     backoff: float = 1.0
+    derivative: str = "error"
 
     def __post_init__(self) -> None:
         vals = (self.ts, self.kp, self.ki, self.kd, self.u_min, self.u_max, self.tf, self.i_lo, self.i_hi, self.backoff)
@@ -75,6 +82,8 @@ class PID:
                              f"tf = {self.tf}, limits [{self.u_min}, {self.u_max}] MU")
         if self.anti_windup not in ANTI_WINDUP:
             raise ValueError(f"PID: anti_windup must be one of {', '.join(ANTI_WINDUP)}, got {self.anti_windup!r}")
+        if self.derivative not in DERIVATIVE:
+            raise ValueError(f"PID: derivative must be one of {', '.join(DERIVATIVE)}, got {self.derivative!r}")
         if self.anti_windup == "band" and not (self.i_lo < self.i_hi and 0 < self.backoff <= 1):
             raise ValueError(f"PID: the band needs i_lo < i_hi and 0 < backoff <= 1, got [{self.i_lo}, {self.i_hi}], "
                              f"backoff {self.backoff}")
@@ -83,15 +92,17 @@ class PID:
         """A copy with some settings changed."""
         return replace(self, **changes)
 
-    def start(self, u_hold: float = 0.0) -> DiscretePID:
-        """A running controller, settled: integrator at ``u_hold`` [MU], previous error 0."""
-        return DiscretePID(self, u_hold)
+    def start(self, u_hold: float = 0.0, w0: float = 0.0) -> DiscretePID:
+        """A running controller, settled: integrator at ``u_hold`` [MU], previous error 0 (the
+        derivative of the measurement: previous reading at the first reference ``w0`` [MU])."""
+        return DiscretePID(self, u_hold, w0)
 
     def c_settings(self) -> dict[str, float | int]:
         """The settings as the C replay's ``MaglevPid`` holds them."""
         return {"ts": self.ts, "kp": self.kp, "ki": self.ki, "kd": self.kd, "u_min": self.u_min,
                 "u_max": self.u_max, "tf": self.tf, "anti_windup": ANTI_WINDUP.index(self.anti_windup),
-                "i_lo": self.i_lo, "i_hi": self.i_hi, "backoff": self.backoff}
+                "i_lo": self.i_lo, "i_hi": self.i_hi, "backoff": self.backoff,
+                "d_on_y": DERIVATIVE.index(self.derivative)}
 
     def tf_discrete(self) -> control.TransferFunction:
         """Eq. 25 from e to u (no limits, no filter): see :func:`pid_tf`."""
@@ -102,14 +113,16 @@ class DiscretePID:
     """A running :class:`PID`: :meth:`step` is one sample of the difference equation. The C replay
     (``c/maglev_replay.c``) has the same equation; ``tests/test_pid.py`` cross-checks the two."""
 
-    def __init__(self, cfg: PID | None = None, u_hold: float = 0.0) -> None:
+    def __init__(self, cfg: PID | None = None, u_hold: float = 0.0, w0: float = 0.0) -> None:
         self.cfg = cfg or PID()
-        self.reset(u_hold)
+        self.reset(u_hold, w0=w0)
 
-    def reset(self, u_hold: float, e_prev: float = 0.0) -> None:
-        """The loop settled: zero error gives output ``u_hold`` [MU] (integrator preloaded)."""
+    def reset(self, u_hold: float, e_prev: float = 0.0, w0: float = 0.0) -> None:
+        """The loop settled: zero error gives output ``u_hold`` [MU] (integrator preloaded); the
+        derivative's last argument ``e_prev``, or with ``derivative="measurement"`` the reading at
+        the first reference ``w0`` [MU] (``-w0``)."""
         self.integral = float(u_hold)
-        self.e_prev = float(e_prev)
+        self.e_prev = -float(w0) if self.cfg.derivative == "measurement" else float(e_prev)
         self.d_prev = 0.0
 
     def step(self, w: float, y: float) -> float:
@@ -119,10 +132,11 @@ class DiscretePID:
         integral = self.integral + c.ki * c.ts * e
         if c.anti_windup == "band" and not c.i_lo < self.integral < c.i_hi:
             integral = min(max(self.integral, c.backoff * c.i_lo), c.backoff * c.i_hi)
+        de = -y if c.derivative == "measurement" else e     # the derivative's argument
         if c.tf > 0:
-            d = (c.tf * self.d_prev + c.kd * (e - self.e_prev)) / (c.tf + c.ts)
+            d = (c.tf * self.d_prev + c.kd * (de - self.e_prev)) / (c.tf + c.ts)
         else:
-            d = c.kd * (e - self.e_prev) / c.ts
+            d = c.kd * (de - self.e_prev) / c.ts
         v = c.kp * e + integral + d
         u = c.u_min if v < c.u_min else (c.u_max if v > c.u_max else v)
         if c.anti_windup == "conditional" and u != v and (v - u) * e > 0:
@@ -130,7 +144,7 @@ class DiscretePID:
         elif c.anti_windup == "clamping":
             integral = c.u_min if integral < c.u_min else (c.u_max if integral > c.u_max else integral)
         self.integral = integral
-        self.e_prev = e
+        self.e_prev = de
         self.d_prev = d
         return u
 

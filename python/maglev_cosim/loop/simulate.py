@@ -94,6 +94,7 @@ class _Response:
                 meta += [("controller", "pid"), ("kp", c.kp), ("ki", c.ki), ("kd", c.kd), ("u_min", c.u_min),
                          ("u_max", c.u_max)]
                 meta += [("tf", c.tf), ("anti_windup", c.anti_windup)] if c.tf or c.anti_windup != "none" else []
+                meta += [("derivative", c.derivative)] if c.derivative != "error" else []
             for k, v in meta:
                 fh.write(f"# {k}: {v}\n")
             wr = csv.writer(fh)

@@ -16,6 +16,10 @@ What it shares with the model is the paper's equations (``../shared/design/plant
   D/A only at ``t_k + pid_offset·ts`` (the computation takes time; default 0.3 of the sample), and
   the plant sees it ``T_d`` later still (effect ``delay``): every output is queued with the instant
   it reaches the coil, so any ``pid_offset·ts + T_d`` works, a whole number of samples or not;
+- **controller form**: the paper's PID by default, or, with the settings ``pid_derivative``
+  (``measurement``: the derivative of the reading alone, no kick at a reference step) and ``pid_tf``
+  (a first-order filter of the derivative [s]), another implementation of the same gains; the
+  record declares the gains alone, as a simulator that never heard of those settings would;
 - **noise**: coloured sensor noise, a continuous first-order low-passed Gaussian (Ornstein-Uhlenbeck)
   process of RMS ``sigma_y`` [MU] and corner ``f_y`` [Hz] sampled at ``t_k`` (``f_y = inf``: white);
   a random force on the ball, another such process (RMS ``sigma_F_rel`` of the weight, time
@@ -60,7 +64,9 @@ PLANT_PARAMS = ("k_DA", "u_0", "k_i", "m_k", "g", "k_c", "x_0", "k_FV", "k_x", "
 
 
 #: Settings of this emulator alone (``synth_record(settings=...)``, ``--setting NAME=VALUE``).
-SETTINGS = ("pid_offset", "f_y", "method", "rtol")
+SETTINGS = ("pid_offset", "f_y", "method", "rtol", "pid_tf", "pid_derivative")
+#: ... of which these are words, not numbers.
+WORD_SETTINGS = ("method", "pid_derivative")
 
 
 @dataclass(frozen=True)
@@ -96,6 +102,10 @@ class IvpConfig:
     v_c: float = 1e-3                  # its smoothing velocity [m/s]
     # the controller's timing: its output reaches the D/A pid_offset·ts after the reading
     pid_offset: float = 0.3
+    # the controller's form: the derivative of the error or of the reading ("measurement"), filtered
+    # with time constant pid_tf [s] (0: the paper's plain difference)
+    pid_derivative: str = "error"
+    pid_tf: float = 0.0
     # noise
     sigma_y: float = 2e-4              # sensor noise RMS [MU]
     f_y: float = 100.0                 # its corner [Hz] (inf: white)
@@ -134,7 +144,8 @@ class IvpConfig:
             ("f_d", c.f_d >= 0), ("pid_offset", 0 <= c.pid_offset <= 1), ("sigma_y", c.sigma_y >= 0),
             ("f_y", c.f_y > 0), ("sigma_F_rel", c.sigma_F_rel >= 0), ("tau_F_noise", c.tau_F_noise >= 0),
             ("F_drift_rel", c.F_drift_rel >= 0), ("tau_drift", c.tau_drift > 0),
-            ("bits", 4 <= int(c.bits) <= 24), ("rtol", 0 < c.rtol <= 1e-3),
+            ("bits", 4 <= int(c.bits) <= 24), ("rtol", 0 < c.rtol <= 1e-3), ("pid_tf", 0 <= c.pid_tf <= 1.0),
+            ("pid_derivative", c.pid_derivative in ("error", "measurement")),
         ]
         for name, ok in rules:
             if not ok:
@@ -359,7 +370,10 @@ def simulate(w: np.ndarray, cfg: IvpConfig | None = None, *, ts: float = 1e-3, k
     # the D/A values on their way to the coil: (instant they reach it, value)
     queue: deque[tuple[float, float]] = deque()
     u_coil = dac(u_hold)
-    integral, e_prev = u_hold, 0.0
+    integral, d_term = u_hold, 0.0
+    # the derivative's last argument: the loop was settled before the first reading, at zero error
+    # (the paper's form) or at a reading the first one's (none yet: a zero derivative at the first sample)
+    d_arg_prev: float | None = 0.0 if c.pid_derivative == "error" else None
     lag = c.pid_offset * ts + c.T_d
     for k in range(n):
         tk, tk1 = k * ts, (k + 1) * ts
@@ -372,12 +386,16 @@ def simulate(w: np.ndarray, cfg: IvpConfig | None = None, *, ts: float = 1e-3, k
         out["contact"][k] = contact
         unclipped = c.k_i * (c.k_DA * min(max(u_coil, -1.0), 1.0) + c.u_0)
         out["i_limited"][k] = 1.0 if unclipped > c.i_max else 0.0
-        # the paper's PID (Eq. 24/25): backward-difference integral and derivative
+        # the paper's PID (Eq. 24/25): backward-difference integral and derivative, the derivative of
+        # the error or of the reading alone, filtered or not (pid_derivative, pid_tf)
         e = float(w[k]) - y
         integral += ki * ts * e
-        u = kp * e + integral + kd * (e - e_prev) / ts
+        d_arg = -y if c.pid_derivative == "measurement" else e
+        diff = 0.0 if d_arg_prev is None else kd * (d_arg - d_arg_prev)
+        d_term = (c.pid_tf * d_term + diff) / (c.pid_tf + ts)
+        u = kp * e + integral + d_term
         u = min(max(u, u_min), u_max)
-        e_prev = e
+        d_arg_prev = d_arg
         u = dac(u)
         out["u"][k] = u
         queue.append((tk + lag, u))
@@ -422,7 +440,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     (:data:`DISTURBANCE_KEYS` and the PID gains, e.g. from :func:`maglev_cosim.records.synth.draw_disturbance`:
     ``sigma_y`` is the coloured sensor noise's RMS here). ``noise=False``: no sensor noise, random
     force or quantisation. ``settings``: this emulator's own (:data:`SETTINGS`: ``pid_offset``,
-    ``f_y``, ``method``, ``rtol``; the friction's ``v_c`` is a parameter of its effect). The record's metadata name the emulator, the seed and
+    ``f_y``, ``method``, ``rtol``, ``pid_tf``, ``pid_derivative``; the friction's ``v_c`` is a parameter of its effect). The record's metadata name the emulator, the seed and
     the effects; the sidecar holds the whole configuration."""
     effects = {name: dict(pv) for name, pv in (effects or {}).items()}
     values, dist, (kp, ki, kd) = checked_settings(effects, params, disturbance, (kp, ki, kd), EFFECTS, PLANT_PARAMS)
@@ -430,7 +448,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     bad = sorted(set(own) - set(SETTINGS))
     if bad:
         raise ValueError(f"unknown emulator setting(s) {', '.join(bad)}: choose from {', '.join(SETTINGS)}")
-    own = {k: (str(v) if k == "method" else float(v)) for k, v in own.items()}
+    own = {k: (str(v) if k in WORD_SETTINGS else float(v)) for k, v in own.items()}
     cfg = IvpConfig().with_values(**{k: float(v) for k, v in (params or {}).items()}, **values, **dist, **own,
                                   seed=int(seed))
     if not noise:

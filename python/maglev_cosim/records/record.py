@@ -32,6 +32,7 @@ import numpy as np
 
 from ..loop.controllers import ControllerError, load_controller
 from ..loop.pid import ANTI_WINDUP as _ALL_ANTI_WINDUP
+from ..loop.pid import DERIVATIVE
 from ..plant.formulas import point
 from ..plant.params import as_params
 
@@ -41,6 +42,8 @@ ANTI_WINDUP = _ALL_ANTI_WINDUP[:3]
 REQUIRED = ("t", "w", "u", "y")
 #: PID defaults (the paper's Eq. 22 gains, Sec. 4.6 sampling) for metadata a record omits.
 PID_DEFAULTS = {"ts": 1e-3, "kp": 2.0, "ki": 2.97, "kd": 0.01, "u_min": 0.0, "u_max": 1.0}
+#: The metadata keys of the PID's form beside its gains (``docs/record-format.md``).
+PID_FORM = ("tf", "anti_windup", "derivative")
 #: Fewest samples and shortest record worth analysing, at any sample rate.
 MIN_SAMPLES = 200
 MIN_DURATION = 1.0
@@ -85,6 +88,7 @@ class Record:
     warnings: list[str] = field(default_factory=list)
     tf: float = 0.0
     anti_windup: str = "none"
+    derivative: str = "error"
     #: A controller declared by a controller file (metadata ``controller: FILE.toml``); None: the PID
     #: of the metadata. ``controller_file`` is where it came from.
     controller: Any = None
@@ -104,8 +108,9 @@ class Record:
         return self.n * self.ts
 
     def pid_kwargs(self) -> dict[str, float]:
-        """The record's controller as keyword arguments (ts, kp, ki, kd, u_min, u_max, tf, anti_windup)."""
-        return {k: getattr(self, k) for k in (*PID_DEFAULTS, "tf", "anti_windup")}
+        """The record's controller as keyword arguments (ts, kp, ki, kd, u_min, u_max, tf, anti_windup,
+        derivative)."""
+        return {k: getattr(self, k) for k in (*PID_DEFAULTS, *PID_FORM)}
 
 
 def _controller_file(path: Path, lines: list[str], meta: dict[str, str], meta_line: dict[str, int]):
@@ -296,7 +301,7 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES, plausibilit
     declared = None
     if meta.get("controller", "pid").lower() != "pid":
         declared = _controller_file(path, lines, meta, meta_line)
-        for key in (*PID_DEFAULTS, "tf", "anti_windup"):
+        for key in (*PID_DEFAULTS, *PID_FORM):
             if key in meta and key != "ts":
                 line = meta_line[key]
                 raise RecordError(path, line, 1, f"{key}: the controller is declared by the file "
@@ -322,6 +327,11 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES, plausibilit
         line = meta_line["anti_windup"]
         raise RecordError(path, line, _value_column(lines[line - 1]), f"anti_windup '{meta['anti_windup']}' is "
                           f"not one of {', '.join(ANTI_WINDUP)}")
+    derivative = meta.get("derivative", "error").lower()
+    if derivative not in DERIVATIVE:
+        line = meta_line["derivative"]
+        raise RecordError(path, line, _value_column(lines[line - 1]), f"derivative '{meta['derivative']}' is "
+                          f"not one of {', '.join(DERIVATIVE)}")
     if params_pid["u_min"] >= params_pid["u_max"]:
         line = meta_line.get("u_max", meta_line.get("u_min", 1))
         raise RecordError(path, line, 1, f"u_min {params_pid['u_min']} must be below u_max {params_pid['u_max']}")
@@ -372,7 +382,8 @@ def read_record(path: str | Path, *, min_samples: int = MIN_SAMPLES, plausibilit
     extra = {name: _extra_column(rows, header.index(name)) for name in extra_names}
     rec = Record(str(path), t, data[:, 1], data[:, 2], data[:, 3], ts, params_pid["kp"], params_pid["ki"],
                  params_pid["kd"], params_pid["u_min"], params_pid["u_max"], meta, extra, tf=tf,
-                 anti_windup=anti_windup, controller=None if declared is None else declared.controller,
+                 anti_windup=anti_windup, derivative=derivative,
+                 controller=None if declared is None else declared.controller,
                  controller_file=None if declared is None else str(declared.path), header_line=header_no,
                  header_columns={h: _cell_column(header_raw, j) for j, h in enumerate(header)})
     if plausibility != "off":
@@ -456,9 +467,10 @@ def _decimals(rows: list[str], col: int) -> int:
 def write_record(path: str | Path, t: np.ndarray, w: np.ndarray, u: np.ndarray, y: np.ndarray, *,
                  ts: float, kp: float, ki: float, kd: float, u_min: float, u_max: float,
                  meta: dict[str, str] | None = None, extra: dict[str, np.ndarray] | None = None,
-                 tf: float = 0.0, anti_windup: str = "none") -> Path:
+                 tf: float = 0.0, anti_windup: str = "none", derivative: str = "error") -> Path:
     """Writes a record in the format of ``docs/record-format.md`` (6 decimals for the signals, as
-    the rig's logger). ``tf`` and ``anti_windup`` are written only when they differ from the paper's."""
+    the rig's logger). ``tf``, ``anti_windup`` and ``derivative`` are written only when they differ
+    from the paper's."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     extra = extra or {}
@@ -467,6 +479,7 @@ def write_record(path: str | Path, t: np.ndarray, w: np.ndarray, u: np.ndarray, 
                            ("u_min", u_min), ("u_max", u_max),
                            *((("tf", tf),) if tf else ()),
                            *((("anti_windup", anti_windup),) if anti_windup != "none" else ()),
+                           *((("derivative", derivative),) if derivative != "error" else ()),
                            *((meta or {}).items())):
             fh.write(f"# {key}: {value}\n")
         fh.write(",".join(["t", "w", "u", "y", *extra]) + "\n")
