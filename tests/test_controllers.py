@@ -154,12 +154,19 @@ limits = [0.0, 9.86]
     (("kp = 12.0", "kp = 12.0\nkq = 1.0"), "current.kq", "unknown key"),
     (("rig = \"levitador\"", "rig = \"inteco-mls2em\""), "rig", "not 'levitador'"),
     (("kp = 12.0", "kp = \"twelve\""), "current.kp", "finite number"),
+    (("kp = -100.0", "kp = -100.0\nderivative = \"setpoint\""), "position.derivative", "must be one of"),
 ])
 def test_bad_controller_files_name_the_file_and_key(tmp_path, edit, key, words):
     p = _write(tmp_path, BASE.replace(*edit, 1) if edit[0] != "kp = 12.0" else BASE.replace(*edit))
     with pytest.raises(ControllerError) as e:
         load_controller(p, "levitador")
     assert str(p) in str(e.value) and f"'{key}'" in str(e.value) and words in str(e.value)
+
+
+def test_a_pid_section_declares_the_derivative_of_the_reading(tmp_path):
+    c = load_controller(_write(tmp_path, BASE.replace("kp = -100.0", 'kp = -100.0\nderivative = "measurement"')),
+                        "levitador")
+    assert c.controller.outer.derivative == "measurement" and c.controller.inner.derivative == "error"
 
 
 def test_record_units_need_a_linear_position_reading(tmp_path):

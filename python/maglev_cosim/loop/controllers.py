@@ -38,7 +38,7 @@ from ..plant import fast
 from ..plant.formulas import point
 from ..plant.params import as_params
 from ..rigs import RigError, _Doc, load_rig
-from .pid import ANTI_WINDUP, DiscretePID, PID
+from .pid import ANTI_WINDUP, DERIVATIVE, DiscretePID, PID
 
 if TYPE_CHECKING:   # python-control (and the matplotlib.pyplot it loads: half a second) is imported where it is
     import control  # used: a diagnosis needs none of it
@@ -477,7 +477,8 @@ def _pid(d, section: str, ts: float, c_in: float, c_out: float) -> PID:
                 "backoff": d.number(f"{section}.backoff", "1", lo=0.0, lo_open=True, hi=1.0, default=1.0)}
     return PID(**band, ts=ts, kp=k("kp", "output/error") * g, ki=k("ki", "output/(error s)") * g,
                kd=k("kd", "output s/error") * g, tf=d.number(f"{section}.tf", "s", lo=0.0, hi=10.0, default=0.0),
-               u_min=lo / c_out, u_max=hi / c_out, anti_windup=aw)
+               u_min=lo / c_out, u_max=hi / c_out, anti_windup=aw,
+               derivative=d.text(f"{section}.derivative", DERIVATIVE, default="error"))
 
 
 def _state_feedback(d, rig, ts: float, maps: dict[str, float]) -> StateFeedback:
