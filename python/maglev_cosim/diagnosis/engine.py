@@ -128,8 +128,7 @@ def _ce152(r: Recording, *, effects, out, progress, workers, fmu, start, json_na
     say = progress or (lambda s: None)
     names = None if effects is None or effects is True else ([] if effects is False else list(effects))
     fmu_in = ensure_fmu(fmu) if out is not None else None       # a missing FMU fails before the diagnosis
-    # the declared PID as the record shows it ran (its derivative filter): every stage replays it
-    rec, _ = identified(r.ce152, say)
+    rec = r.ce152
     say(f"diagnosing {rec.path}: {rec.n} samples, {rec.duration:.2f} s")
     # The black boxes need no model: they are fitted on a thread of their own once the search has
     # ended (no worker is forked after it), beside the verdict's estimates, which leave a core idle
@@ -138,6 +137,7 @@ def _ce152(r: Recording, *, effects, out, progress, workers, fmu, start, json_na
         boxes: list[Future] = []
         d = pipeline.run(rec, effects=names, workers=workers, progress=progress, start=start,
                          searched=lambda: boxes.append(side.submit(black_box_predictions, rec)))
+        rec = d.diagnosed   # with its PID's form as the record showed it (controller_form)
         cmp = None
         if d.verdict is not None:
             say("comparing the final model's predictions with the black box and the naive predictors (5, 20, 50 ms)")
@@ -162,6 +162,7 @@ def _ce152_joint(recs: list[Recording], held: list[Recording], *, effects, out, 
                  json_name: str) -> DiagnosisResult:
     names = None if effects is None or effects is True else ([] if effects is False else list(effects))
     fmu_in = ensure_fmu(fmu) if out is not None else None
+    # each record with its PID's form as it showed it (controller_form): the joint fits replay them too
     train, judged = [identified(r.ce152, progress)[0] for r in recs], [identified(r.ce152, progress)[0] for r in held]
     j = joint.run(train, judged, effects=names, workers=workers, progress=progress)
     if out is None:

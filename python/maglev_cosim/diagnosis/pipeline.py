@@ -35,7 +35,8 @@ from .metrics import chi2_quantile, nrmse_fit
 from .problem import (FIT_TOL, Fit, Parameterization, Problem, cost_on, fit, on_fit_steps, one_thread, residuals,
                       stacked, thread_map)
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
-from .residual import analyse_residual, check_controller, effective_samples, noise_floor
+from .controller_form import identified
+from .residual import analyse_residual, effective_samples, noise_floor
 from .result import Json
 from .verdict import Verdict, conclude, on_bounds
 
@@ -66,6 +67,8 @@ class Diagnosis:
     record_warnings: list[str] = field(default_factory=list)
     verdict: Verdict | None = None
     fit_mode: str = "free run"       # which errors the fits minimised: "free run" or "prediction"
+    #: The record as diagnosed: with its PID's form as the record showed it (:mod:`.controller_form`).
+    diagnosed: Record | None = field(default=None, repr=False)
 
     @property
     def warnings(self) -> list[str]:
@@ -1495,7 +1498,9 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
         if e not in CATALOGUE:
             raise ValueError(f"unknown effect {e!r}: choose from {', '.join(CATALOGUE)}")
     workers = workers or min(2, os.cpu_count() or 1)
-    check_controller(rec)      # a record whose u its controller did not make (swapped columns): at once
+    # a record whose u its controller did not make (swapped columns) fails at once; a PID that ran in
+    # another form than the declared one (its derivative's): every stage replays the form that ran
+    rec, _ = identified(rec, say)
     base = baseline_params()
     base.update({k: float(v) for k, v in (static_start(rec, base, say) if start is None else start).items()})
     fit_mask = fit_blocks(rec.t)
@@ -1544,4 +1549,4 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
                      unc, found.candidates, {**base, **cal.values}, analyse_residual(rec, cal.sim), residual_after,
                      noise, found.rounds, elapsed,
                      sims={"raw": cal.raw, "before": cal.sim, "after": sim_after}, unexplained=unexplained,
-                     record_warnings=list(rec.warnings), verdict=verdict, fit_mode=cal.prob.mode)
+                     record_warnings=list(rec.warnings), verdict=verdict, fit_mode=cal.prob.mode, diagnosed=rec)
