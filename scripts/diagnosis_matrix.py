@@ -485,6 +485,8 @@ def main() -> None:
             Path(a.json).write_text(json.dumps(res, indent=2, default=float))
         if a.write_docs:
             title = f"Acceptance benchmark: {'independent emulator' if a.emulator == 'ivp' else 'project emulator'}"
+            if a.setting:     # a run with the independent emulator's own settings has a section of its own
+                title += " (" + ", ".join(a.setting) + ")"
             benchdoc.write_section(title, family_section(res, a.emulator), time.perf_counter() - t_start)
             print(f"wrote the section '{title}' of {benchdoc.DOC}")
         return

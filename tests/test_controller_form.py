@@ -72,3 +72,5 @@ def test_a_record_without_effects_made_by_another_pid_form_ends_no_effect(tmp_pa
     assert any("the derivative of the reading alone" in w for w in d.warnings)
     doc = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert doc["verdict"] == "no effect" and any("replays that PID" in w for w in doc["warnings"])
+    record_line = next(ln for ln in (tmp_path / "out" / "report.md").read_text().splitlines() if ln.startswith("Record:"))
+    assert "derivative of the reading alone" in record_line

@@ -343,7 +343,10 @@ def write_report(rec: Record, d: Diagnosis, out: Path, *, fmu_out: Path | None =
     if d.warnings:
         lines += ["**Warnings**:", ""] + [f"- {w}" for w in d.warnings] + [""]
     ctrl = (f"controller {type(rec.controller).__name__} declared by `{rec.controller_file}`"
-            if rec.controller is not None else f"PID kp = {rec.kp}, ki = {rec.ki}, kd = {rec.kd}")
+            if rec.controller is not None else f"PID kp = {rec.kp}, ki = {rec.ki}, kd = {rec.kd}"
+            + (f", derivative filter tf = {rec.tf * 1e3:.3g} ms" if rec.tf else "")
+            + (", derivative of the reading alone" if rec.derivative == "measurement" else "")
+            + (f", anti-windup {rec.anti_windup}" if rec.anti_windup != "none" else ""))
     lines += [f"Record: {rec.n} samples at ts = {rec.ts} s ({rec.duration:.2f} s); {ctrl}, "
               f"output limits [{rec.u_min}, {rec.u_max}] MU.", ""]
     lines += ["## Result", ""]
