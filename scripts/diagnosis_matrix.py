@@ -307,7 +307,11 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n
         print(f"{name:<22}{seed:>6}  {_selected(row):<40}{ratio:>23.2f}{ratio_k:>12.2f}{dt:>6.1f}  "
               f"{d.verdict.verdict}", flush=True)
         out["power"].append(row)
-    catalogue_rows = [r for r in out["power"] if r["case"] in POWER_CASES]
+    # a current limit the record's current hardly reaches (the PID of the emulator's setting
+    # pid_derivative=measurement spares the output the kicks at the steps that reach the matrix's
+    # limit: 5 samples of 12000 at seed 7200) is no effect of the record: it is shown, and left out
+    # of the power
+    catalogue_rows = [r for r in out["power"] if r["case"] in POWER_CASES and not _never_acts(r)]
     hits = sum(r["selected"][:1] == [r["effect"]] for r in catalogue_rows)
     explained = sum(r["verdict"] == "explained" for r in catalogue_rows)
     out["checks"] = _checks(out, n_null, fp, hits, len(catalogue_rows))
@@ -322,6 +326,16 @@ def family(n_null: int, n_power: int, seed0: int, tmp: Path, n_limit: int = 0, n
     out["false_positive_rate"] = fp / max(n_null, 1)
     out["power_rate"] = hits / len(catalogue_rows) if catalogue_rows else None
     return out
+
+
+#: A planted current limit the current exceeds in fewer samples than this share (12 samples of a 12 s
+#: record; a tenth of issue 22's lowest share of interest, 1 %) is not an effect of the record.
+MIN_ACTING_SHARE = 1e-3
+
+
+def _never_acts(row: dict) -> bool:
+    """A planted current limit that the record's current hardly exceeds (:data:`MIN_ACTING_SHARE`)."""
+    return row["effect"] == "current_saturation" and row["i_limited_share"] < MIN_ACTING_SHARE
 
 
 def _selected(row: dict) -> str:
@@ -370,6 +384,11 @@ def _checks(out: dict, n_null: int, fp: int, hits: int, n_catalogue: int) -> lis
              ("'explained' beyond 1.2× the no-effect twin's error", len(power), str(len(loose_twin))),
              ("friction ≥ 2 % of the weight", len(friction), _share(len(fr_ok), len(friction))),
              ("current limit found, i_max within 5 %", len(limits), _share(len(lim_ok), len(limits)))]
+    idle = [r for r in power if r["case"] in POWER_CASES and _never_acts(r)]
+    if idle:
+        rows.append((f"a catalogue current limit the current exceeds in under {100 * MIN_ACTING_SHARE:g} % of the samples "
+                     "(left out of the power)",
+                     len(idle), ", ".join(r["case"] for r in idle)))
     if beyond:
         rows.append((f"current limit active in under {100 * LIMIT_SHARE[0]:.0f} % or over {100 * LIMIT_SHARE[1]:.0f} % "
                      "of the samples (outside the criterion), found", len(beyond), _share(len(found(beyond)), len(beyond))))

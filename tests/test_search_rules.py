@@ -334,6 +334,39 @@ def test_distance_from_off_in_standard_errors():
     assert all(e.off_values for e in CATALOGUE.values())
 
 
+def _acting(values: dict) -> dict:
+    """A fake free run on which every parameter acts: its y holds the values."""
+    return {"y": np.array([float(v) for _, v in sorted(values.items())])}
+
+
+def test_an_effect_that_no_longer_acts_leaves_the_final_model(monkeypatch):
+    """The k-step refit moved a current limit above every current the model's free run reaches (the
+    independent emulator's 2 ms force lag of seed 7200 with the PID's derivative of the reading: i_max
+    0.870 A accepted on held-out blocks, 0.909 A after the refit, sigma 0): the free run without it is
+    the same, and it leaves; a limit that bites stays."""
+    calls = []
+
+    def fake_refit(prob, current, selected, say):
+        calls.append(list(selected))
+        i_max = 0.909 if "current_saturation" in selected else current["i_max"]
+        return {"T_F": 2.3e-3, "i_max": i_max}, {"T_F": 2e-5, "i_max": 0.0}, None
+
+    monkeypatch.setattr(pipeline, "_refit", fake_refit)
+    peak = 0.88
+    prob = SimpleNamespace(base={"T_F": 5e-5, "i_max": 1.5},
+                           free_run=lambda v: {"y": np.array([v["T_F"], min(peak, v["i_max"])])})
+    said: list[str] = []
+    selected = ["force_lag", "current_saturation"]
+    values, _ = pipeline.refit(prob, {"T_F": 2e-3, "i_max": 0.87}, selected, said.append)
+    assert selected == ["force_lag"] and values["i_max"] == 1.5 and calls[-1] == ["force_lag"]
+    assert any("current_saturation without action" in m for m in said), said
+    calls.clear()
+    peak = 0.95                    # the model's current now reaches 0.909 A: the limit acts and stays
+    selected = ["force_lag", "current_saturation"]
+    pipeline.refit(prob, {"T_F": 2e-3, "i_max": 0.87}, selected, lambda s: None)
+    assert selected == ["force_lag", "current_saturation"] and calls == [["force_lag", "current_saturation"]]
+
+
 def test_a_faint_effect_leaves_the_final_model(monkeypatch):
     """The final refit drops an effect whose parameter lies within 3σ of off (the record does not
     tell it from its absence), the first one too (the force exponent 1.3σ from 2 that the
@@ -349,6 +382,7 @@ def test_a_faint_effect_leaves_the_final_model(monkeypatch):
 
     class Prob:
         base = {"k_x2": 0.0, "i_max": 1.5, "T_d": 0.0}
+        free_run = staticmethod(_acting)
 
     monkeypatch.setattr(pipeline, "_refit", fake_refit)
     selected = ["current_saturation", "sensor_nonlinearity"]
@@ -386,7 +420,7 @@ def test_a_faint_effect_leaves_the_final_model(monkeypatch):
     calls.clear()
     said.clear()
     selected = ["amplifier_lag", "force_lag"]
-    values, _ = pipeline.refit(SimpleNamespace(base={"T_a": 0.0, "T_F": 5e-5}), {"T_a": 2.4e-3, "T_F": 2.6e-3},
+    values, _ = pipeline.refit(SimpleNamespace(base={"T_a": 0.0, "T_F": 5e-5}, free_run=_acting), {"T_a": 2.4e-3, "T_F": 2.6e-3},
                                selected, said.append)
     assert selected == ["force_lag"] and calls == [["amplifier_lag", "force_lag"], ["force_lag"]], (selected, calls)
     assert values["T_a"] == 0.0 and values["T_F"] == 2.6e-3
@@ -475,7 +509,7 @@ def test_an_effect_the_k_step_fit_takes_across_off_is_judged_as_one_it_took_off(
     monkeypatch.setattr(pipeline, "_uncertainties", lambda prob, current, selected, values: {"k_x2": 290.0})
     y = np.sin(np.linspace(0.0, 20.0, 500))
     prob = SimpleNamespace(base={"k_x2": 0.0}, noise=None, rec=SimpleNamespace(y=y),
-                           free_run=lambda v: {"y": y + 0.01 * np.cos(np.linspace(0.0, 20.0, 500))})
+                           free_run=lambda v: {"y": y + 0.01 * np.cos(np.linspace(0.0, 20.0, 500)) + 1e-9 * v["k_x2"]})
 
     def run() -> tuple[dict, list[str], list[str]]:
         calls.clear()
