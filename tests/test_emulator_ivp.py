@@ -301,6 +301,8 @@ def test_synth_record_refuses_what_it_does_not_have(tmp_path):
         E.synth_record(tmp_path / "r.csv", settings={"warp": 1.0}, duration=1.0)
     with pytest.raises(ValueError, match="pid_offset"):
         E.synth_record(tmp_path / "r.csv", settings={"pid_offset": 1.5}, duration=1.0)
+    with pytest.raises(ValueError, match="pid_derivative"):
+        E.synth_record(tmp_path / "r.csv", settings={"pid_derivative": "setpoint"}, duration=1.0)
     assert not (tmp_path / "r.csv").exists()
 
 

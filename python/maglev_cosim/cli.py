@@ -440,7 +440,7 @@ def cmd_synth(a: argparse.Namespace) -> dict:
             raise CliError(f"--setting {spec!r}: expected NAME=VALUE")
         k, v = (x.strip() for x in spec.split("=", 1))
         try:
-            settings[k] = v if k == "method" else float(v)      # f_y = inf: white sensor noise
+            settings[k] = v if k in emulator_ivp.WORD_SETTINGS else float(v)      # f_y = inf: white sensor noise
         except ValueError:
             raise CliError(f"--setting {spec!r}: {v!r} is not a number") from None
     kw, write = {}, synth_record
@@ -664,7 +664,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "sample late; effects " + ", ".join(emulator_ivp.EFFECTS) + ")")
     s.add_argument("--setting", action="append", metavar="NAME=VALUE",
                    help="with --emulator ivp: pid_offset (fraction of the sample, default 0.3), f_y (sensor noise "
-                        "corner [Hz], default 100, inf: white), v_c (friction smoothing [m/s]), method, rtol")
+                        "corner [Hz], default 100, inf: white), method, rtol, pid_derivative (error, the default, or "
+                        "measurement: the PID's derivative of the reading alone), pid_tf (its derivative filter [s]); "
+                        "the record declares the PID's gains alone")
     s.lazy_epilog = _catalogue_help
     s.set_defaults(func=cmd_synth)
 
