@@ -15,13 +15,31 @@ from maglev_cosim.records.record import RecordError, read_record, write_record
 from maglev_cosim.records.synth import draw_disturbance, synth_record
 
 
+#: The records' length [s]: a staircase of 2 s holds a reference step or two.
+DURATION = 2.0
+
+
+@pytest.fixture(scope="module")
+def ivp(tmp_path_factory):
+    """A record of the independent emulator (seed 4, DURATION) with the PID's ``settings``, made once."""
+    made: dict = {}
+
+    def make(**settings):
+        key = tuple(sorted(settings.items()))
+        if key not in made:
+            path = tmp_path_factory.mktemp("ivp") / "r.csv"
+            made[key] = read_record(ivp_record(path, duration=DURATION, seed=4, settings=settings))
+        return made[key]
+    return make
+
+
 @pytest.mark.parametrize("settings, derivative, tf", [
     ({"pid_derivative": "measurement"}, "measurement", 0.0),
     ({"pid_tf": 0.001}, "error", 0.001),
     ({"pid_derivative": "measurement", "pid_tf": 0.003}, "measurement", 0.003),
 ])
-def test_a_pid_that_ran_in_another_form_is_identified(tmp_path, settings, derivative, tf):
-    rec = read_record(ivp_record(tmp_path / "r.csv", duration=3.0, seed=4, settings=settings))
+def test_a_pid_that_ran_in_another_form_is_identified(ivp, settings, derivative, tf):
+    rec = ivp(**settings)
     assert rec.derivative == "error" and rec.tf == 0.0            # the record declares the gains alone
     form = identify(rec)
     assert form.adopted and form.derivative == derivative
@@ -33,10 +51,8 @@ def test_a_pid_that_ran_in_another_form_is_identified(tmp_path, settings, deriva
     assert f"{form.declared_rms:.3g} MU" in again.warnings[-1] and f"{form.rms:.3g} MU" in again.warnings[-1]
 
 
-def test_the_declared_form_stays_where_it_made_the_record(tmp_path):
-    for path in (ivp_record(tmp_path / "ivp.csv", duration=3.0, seed=4),
-                 synth_record(tmp_path / "rig.csv", duration=3.0, seed=4)):
-        rec = read_record(path)
+def test_the_declared_form_stays_where_it_made_the_record(ivp, tmp_path):
+    for rec in (ivp(), read_record(synth_record(tmp_path / "rig.csv", duration=DURATION, seed=4))):
         form = identify(rec)
         assert not form.adopted and (form.derivative, form.tf) == ("error", 0.0)
         assert form.declared_rms < 5e-4          # the D/A's and the file's rounding (12 bits: 2.4e-4 MU a step)
@@ -44,8 +60,8 @@ def test_the_declared_form_stays_where_it_made_the_record(tmp_path):
         assert again is rec
 
 
-def test_a_record_declares_the_derivative_of_the_reading(tmp_path):
-    rec = read_record(ivp_record(tmp_path / "r.csv", duration=3.0, seed=4, settings={"pid_derivative": "measurement"}))
+def test_a_record_declares_the_derivative_of_the_reading(ivp, tmp_path):
+    rec = ivp(pid_derivative="measurement")
     path = write_record(tmp_path / "declared.csv", rec.t, rec.w, rec.u, rec.y, ts=rec.ts, kp=rec.kp, ki=rec.ki,
                         kd=rec.kd, u_min=rec.u_min, u_max=rec.u_max, derivative="measurement")
     declared = read_record(path)
