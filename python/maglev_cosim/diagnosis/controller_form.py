@@ -82,11 +82,6 @@ class ControllerForm:
     derivative: str
     adopted: bool
 
-    def to_json(self) -> dict:
-        return {"declared_rms_MU": self.declared_rms, "rms_MU": self.rms, "samples": self.samples,
-                "tf_declared_s": self.tf_declared, "tf_s": self.tf, "derivative_declared": self.derivative_declared,
-                "derivative": self.derivative, "adopted": self.adopted}
-
 
 def misfit(rec: Record, pid: PID) -> tuple[float, int]:
     """RMS [MU] of the recorded u minus ``pid`` run on the recorded w and y, over the samples where
