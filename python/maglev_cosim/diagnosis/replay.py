@@ -164,6 +164,31 @@ def _nll(out: Mapping[str, np.ndarray], mask: np.ndarray | None = None, skip: in
     return float(np.mean(np.log(s[ok]) + e[ok] ** 2 / s[ok])) if ok.any() else float("inf")
 
 
+def _scaled_nll(out: Mapping[str, np.ndarray], skip: int = 200,
+                c_range: tuple[float, float] = (0.0, np.inf)) -> tuple[float, float]:
+    """:func:`_nll` at the best common factor ``c`` of every noise variance within ``c_range``, and ``c``.
+
+    The random force and the sensor noise (white and coloured) are the only noises of the filter's
+    model, so multiplying all their variances by ``c`` multiplies every covariance it propagates by
+    ``c`` (but for the fixed part of its start covariance, forgotten within the skipped samples):
+    the gain, the state estimates and the innovations e stay the same and their variances s become
+    c·s. The mean of ``log(c·s) + e²/(c·s)`` is least at ``c = mean(e²/s)``, where it is
+    ``mean(log s) + log c + 1``: the likelihood concentrated on the levels' ratios, one dimension
+    fewer for the search (Harvey 1989, *Forecasting, structural time series models and the Kalman
+    filter*, Sec. 3.4). Held within ``c_range`` (the levels' bounds; a record without noise has
+    ``mean(e²/s)`` near 0), the mean is ``mean(log s) + log c + mean(e²/s)/c``."""
+    e, s = out["innov"], out["innov_var"]
+    ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
+    ok[:skip] = False
+    if not ok.any():
+        return float("inf"), 1.0
+    m = float(np.mean(e[ok] ** 2 / s[ok]))
+    c = float(np.clip(m, *c_range))
+    if not c > 0:
+        return float("inf"), 1.0
+    return float(np.mean(np.log(s[ok]))) + float(np.log(c)) + m / c, c
+
+
 def innovation_nll(rec: Record, params: Mapping[str, float], noise: NoiseModel, skip: int = 200,
                    mask: np.ndarray | None = None) -> float:
     """Mean negative log-likelihood of the one-step innovations (Gaussian; constants dropped, times
@@ -202,23 +227,90 @@ RESTART_MAXFEV = 40
 
 
 def minimize_restarted(cost, z0: np.ndarray, *, maxfev: int, restarts: int = NOISE_RESTARTS,
-                       xatol: float = 0.05, fatol: float = RESTART_GAIN):
+                       xatol: float = 0.05, fatol: float = RESTART_GAIN, step: float | None = None):
     """scipy's Nelder-Mead from ``z0``, then again from its end (a fresh simplex: scipy's default,
     5 % of each coordinate) up to ``restarts`` times while that lowers the cost by more than
-    ``fatol``. Returns scipy's result of the best run, with ``nfev`` summed over the runs."""
+    ``fatol``. ``step``: the first simplex's edge along each coordinate (default: scipy's).
+    Returns scipy's result of the best run, with ``nfev`` summed over the runs."""
     opts = {"xatol": xatol, "fatol": fatol}
-    res = minimize(cost, z0, method="Nelder-Mead", options={**opts, "maxfev": maxfev})
+    z0 = np.asarray(z0, dtype=float)
+    first = {} if step is None else {"initial_simplex": np.vstack([z0, z0 + step * np.eye(len(z0))])}
+    res = minimize(cost, z0, method="Nelder-Mead", options={**opts, "maxfev": maxfev, **first})
     nfev = res.nfev
     for _ in range(restarts):
         again = minimize(cost, res.x, method="Nelder-Mead", options={**opts, "maxfev": RESTART_MAXFEV})
         nfev += again.nfev
-        gained = res.fun - again.fun
+        gained = res.fun - again.fun if np.isfinite(again.fun) else 0.0    # inf - inf: no gain
         if again.fun < res.fun:
             res = again
         if not gained > fatol:
             break
     res.nfev = nfev
     return res
+
+
+#: The white disturbance estimate's coarse grid (:func:`_concentrated_search`): the random force's
+#: RMS as these multiples of its start (0.3 % of the weight, so from 0.003 % to 3 % of it: the
+#: search's bounds are 1e-4 % and 50 %), each at these corners [Hz]; and the edge of the first
+#: simplex around the grid's best point [natural log: a factor 1.65].
+NOISE_GRID_RATIOS = (1e-2, 1e-1, 1.0, 1e1, 1e2, 1e3)
+NOISE_GRID_CORNERS_HZ = (2.0, 20.0, 200.0)
+NOISE_STEP = 0.5
+
+#: The positions, in a noise model's levels (q_force, f_force, r_sensor, f_sensor, r_coloured), of
+#: those that are RMS values: a common factor of their variances is concentrated out of the
+#: likelihood (:func:`_scaled_nll`).
+_RMS_LEVELS = (0, 2, 4)
+
+
+def _concentrated_search(rec: Record, params: Mapping[str, float], z0: np.ndarray, lo: np.ndarray,
+                         hi: np.ndarray, *, maxfev: int, grid: bool = False) -> tuple[np.ndarray, float]:
+    """The logarithms of the noise levels of greatest innovation likelihood (3: q_force, f_force,
+    r_sensor; or 5: and f_sensor, r_coloured), searched from ``z0`` within ``lo``..``hi``.
+
+    The search (:func:`minimize_restarted`) holds r_sensor at its start and moves the others; the
+    common factor of the variances is then the closed-form optimum of :func:`_scaled_nll`, which
+    scales every RMS level. The same maximum as a search over every level, with one coordinate
+    fewer. With ``grid``, the search starts from the best point of a coarse grid
+    (:data:`NOISE_GRID_RATIOS` × :data:`NOISE_GRID_CORNERS_HZ` around ``z0``'s force), whose
+    likelihood has plateaus: a record with a 50 Hz pickup the model lacked has one where the sensor
+    noise takes it and a deeper one where a random force does, and a search from the usual start
+    ended on the first. Returns the levels' logarithms (clipped to ``lo``..``hi``) and the mean
+    ``log s + e²/s`` there."""
+    n = len(z0)
+    rms = [i for i in _RMS_LEVELS if i < n]
+    moved = [i for i in range(n) if i != 2]
+    # an RMS level moves relative to the held r_sensor: its bounds widen by r_sensor's range
+    span = hi[2] - lo[2]
+    lo_m, hi_m = lo.astype(float).copy(), hi.astype(float).copy()
+    lo_m[rms] -= span
+    hi_m[rms] += span
+
+    # the factor keeps r_sensor within its bounds
+    c_range = (float(np.exp(2.0 * (lo[2] - z0[2]))), float(np.exp(2.0 * (hi[2] - z0[2]))))
+
+    def levels(zm: np.ndarray) -> np.ndarray:
+        z = np.array(z0, dtype=float)
+        z[moved] = np.clip(zm, lo_m[moved], hi_m[moved])
+        return z
+
+    def run(zm: np.ndarray) -> tuple[float, float]:
+        try:
+            return _scaled_nll(predict(rec, params, NoiseModel(*np.exp(levels(zm))), horizon_s=0.0),
+                               c_range=c_range)
+        except ValueError:
+            return float("inf"), 1.0
+
+    start = np.asarray(z0, dtype=float)[moved]
+    if grid:
+        points = [np.array([start[0] + np.log(k), np.log(f), *start[2:]])
+                  for k in NOISE_GRID_RATIOS for f in NOISE_GRID_CORNERS_HZ]
+        start = min(points, key=lambda zm: run(zm)[0])
+    res = minimize_restarted(lambda zm: run(zm)[0], start, maxfev=maxfev, step=NOISE_STEP)
+    cost, c = run(res.x)
+    z = levels(res.x)
+    z[rms] += 0.5 * np.log(c)
+    return np.clip(z, lo, hi), cost
 
 
 #: The last disturbance estimates (:func:`estimate_noise`), by record and arguments: the diagnosis asks
@@ -243,9 +335,10 @@ def estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool =
 def _estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool = True,
                     info: dict | None = None, sensor: NoiseModel | None = None) -> NoiseModel:
     """The record's disturbance levels by maximum likelihood of the filter's innovations: the
-    random force's RMS and corner and the sensor noise's RMS (Nelder-Mead over their logarithms,
-    started from the reading's white noise and 0.3 % of the weight at 20 Hz, and again from where
-    it stops: :func:`minimize_restarted`).
+    random force's RMS and corner and the sensor noise's RMS: the likelihood concentrated on the
+    force's RMS relative to the sensor noise's and the corner (:func:`_concentrated_search`), searched
+    by Nelder-Mead over their logarithms from the best point of a coarse grid around the reading's
+    white noise and 0.3 % of the weight, and again from where it stops (:func:`minimize_restarted`).
 
     Then, with ``coloured``, whether the sensor noise has a coloured part (``f_sensor``,
     ``r_coloured``), chosen by the held-out criterion of the effects (:func:`.acceptance.accept`):
@@ -276,16 +369,19 @@ def _estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool 
     if held:
         z0[2] = np.log(max(min(sensor.r_sensor, 0.05), 1e-6))
 
-    def cost(z: np.ndarray) -> float:
-        z = np.clip(z, lo, hi)
-        try:
-            return innovation_nll(rec, params, NoiseModel(*np.exp(z), *extra))
-        except ValueError:
-            return float("inf")
+    if held:
+        def cost(z: np.ndarray) -> float:
+            z = np.clip(z, lo, hi)
+            try:
+                return innovation_nll(rec, params, NoiseModel(*np.exp(z), *extra))
+            except ValueError:
+                return float("inf")
 
-    res = minimize_restarted(cost, z0, maxfev=80)
-    white = NoiseModel(*(float(v) for v in np.exp(np.clip(res.x, lo, hi))), *extra)
-    if not coloured or held:
+        res = minimize_restarted(cost, z0, maxfev=80)
+        return NoiseModel(*(float(v) for v in np.exp(np.clip(res.x, lo, hi))), *extra)
+    z, _ = _concentrated_search(rec, params, z0, lo, hi, maxfev=80, grid=True)
+    white = NoiseModel(*(float(v) for v in np.exp(z)))
+    if not coloured:
         return white
     return _coloured_choice(rec, params, white, info)
 
@@ -346,21 +442,15 @@ def _coloured_choice(rec: Record, params: Mapping[str, float], white: NoiseModel
     hi5 = np.log([0.5 * as_params(params).m_k * as_params(params).g, 1.0 / rec.ts, 0.05, f_hi, 0.05])
     z5 = np.log([split.q_force, split.f_force, split.r_sensor, split.f_sensor, split.r_coloured])
 
-    def cost5(z: np.ndarray) -> float:
-        try:
-            return innovation_nll(rec, params, NoiseModel(*np.exp(np.clip(z, lo5, hi5))))
-        except ValueError:
-            return float("inf")
-
-    res5 = minimize_restarted(cost5, z5, maxfev=80)
+    best, cost5 = _concentrated_search(rec, params, z5, lo5, hi5, maxfev=80)
     # and from the split's sensor noise with the random force where the white fit started: the white
     # fit's force has taken the coloured noise's share of the innovations (a corner near the sample
     # rate), and from there the search may not find its way back to a slow force
     z5b = np.concatenate([np.log([3e-3 * as_params(params).m_k * as_params(params).g, 20.0]), z5[2:]])
-    res5b = minimize_restarted(cost5, z5b, maxfev=80)
-    if res5b.fun < res5.fun:
-        res5 = res5b
-    nm = NoiseModel(*(float(v) for v in np.exp(np.clip(res5.x, lo5, hi5))))
+    other, cost5b = _concentrated_search(rec, params, z5b, lo5, hi5, maxfev=80)
+    if cost5b < cost5:
+        best = other
+    nm = NoiseModel(*(float(v) for v in np.exp(best)))
     off = nm.f_sensor <= 1.01 * F_SENSOR_MIN or nm.r_coloured < 0.1 * nm.r_sensor
     if info is not None:
         info.update({"coloured_off": off, "whole_record": nm})
