@@ -162,9 +162,11 @@ def _ce152_joint(recs: list[Recording], held: list[Recording], *, effects, out, 
                  json_name: str) -> DiagnosisResult:
     names = None if effects is None or effects is True else ([] if effects is False else list(effects))
     fmu_in = ensure_fmu(fmu) if out is not None else None
-    # each record with its PID's form as it showed it (controller_form): the joint fits replay them too
-    train, judged = [identified(r.ce152, progress)[0] for r in recs], [identified(r.ce152, progress)[0] for r in held]
-    j = joint.run(train, judged, effects=names, workers=workers, progress=progress)
+    # each record with its PID's form as it showed it (controller_form): a calibration record's own
+    # diagnosis reads it (pipeline.run), a validation record's is read here
+    judged = [identified(r.ce152, progress)[0] for r in held]
+    j = joint.run([r.ce152 for r in recs], judged, effects=names, workers=workers, progress=progress)
+    train = [d.diagnosed for d in j.each]
     if out is None:
         return joint.result(j, train, judged)
     return joint.write(j, train, judged, Path(out), fmu_in, json_name)

@@ -128,9 +128,11 @@ def run(recs: Sequence[Record], held: Sequence[Record], *, effects: Sequence[str
     Parameters
     ----------
     recs : sequence of Record
-        The calibration records (two or more, or one with validation records).
+        The calibration records (two or more, or one with validation records). Each is fitted as its
+        own diagnosis read it (:attr:`.pipeline.Diagnosis.diagnosed`: with its PID's form).
     held : sequence of Record
-        The validation records: judged, never fitted.
+        The validation records: judged, never fitted. Their PID's form is the caller's
+        (:func:`.controller_form.identified`).
     effects : sequence of str, optional
         The catalogue entries each record's search tries (default :data:`~.effects.DEFAULT_EFFECTS`).
     workers : int, optional
@@ -145,6 +147,8 @@ def run(recs: Sequence[Record], held: Sequence[Record], *, effects: Sequence[str
         say(f"[{k}/{len(recs)}] diagnosing {rec.path} on its own")
         each.append(pipeline.run(rec, effects=effects, workers=workers,
                                  progress=lambda s, k=k: say(f"[{k}/{len(recs)}] {s}")))
+    # each record as its own diagnosis read it: with its PID's form as it showed it (controller_form)
+    recs = [d.diagnosed if d.diagnosed is not None else r for r, d in zip(recs, each)]
     union = list(dict.fromkeys(e for d in each for e in d.selected))
     # every record weighted by its own calibrated baseline's error, so that each counts alike
     probs_base = [Problem(r, dict(d.calibrated_baseline), max(d.before["rms_y"], 1e-6), max(d.before["rms_u"], 1e-6),
