@@ -31,12 +31,12 @@ else
   fi
   echo "[test] Windows binaries: tests/test_win64.py (the importer under wine against linux64, export tables)"
   rc=0
-  .venv/bin/python -m pytest tests/test_win64.py -m "slow or not slow" -v -s -rs "$@" || rc=$?
+  .venv/bin/python -m pytest tests/test_win64.py -m "slow or not slow" -n 0 -v -s -rs "$@" || rc=$?
   [ "$rc" -eq 0 ] || [ "$rc" -eq 5 ] || exit "$rc"   # 5: the arguments selected none of them
 fi
-echo "[test] Python tests against the installed package, quick tier"
+echo "[test] Python tests against the installed package, quick tier (on every core: pytest-xdist)"
 .venv/bin/python -m pytest --ignore=tests/test_win64.py "$@"
 echo "[test] Python tests, slow tier (diagnosis matrix, the wheel in a fresh venv; one line per test)"
 rc=0
-.venv/bin/python -m pytest -m slow --ignore=tests/test_win64.py -v --durations=5 "$@" || rc=$?
+.venv/bin/python -m pytest -m slow -n 0 --ignore=tests/test_win64.py -v --durations=5 "$@" || rc=$?
 [ "$rc" -eq 0 ] || [ "$rc" -eq 5 ] || exit "$rc"   # 5: the arguments selected no slow test
