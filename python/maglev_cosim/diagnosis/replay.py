@@ -249,10 +249,11 @@ def minimize_restarted(cost, z0: np.ndarray, *, maxfev: int, restarts: int = NOI
     return res
 
 
-#: The white disturbance estimate's coarse grid (:func:`_concentrated_search`): the random force's
-#: RMS as these multiples of its start (0.3 % of the weight, so from 0.003 % to 3 % of it: the
-#: search's bounds are 1e-4 % and 50 %), each at these corners [Hz]; and the edge of the first
-#: simplex around the grid's best point [natural log: a factor 1.65].
+#: The white disturbance estimate's coarse grid (:func:`_concentrated_search`): the ratio of the
+#: random force's RMS to the sensor noise's as these multiples of the start's (0.3 % of the weight
+#: over the reading's white noise; a 50 Hz pickup the model lacked was best taken by a force some 50 times
+#: that ratio), each at these corners [Hz]; and the edge of the first simplex around the grid's
+#: best point [natural log: a factor 1.65].
 NOISE_GRID_RATIOS = (1e-2, 1e-1, 1.0, 1e1, 1e2, 1e3)
 NOISE_GRID_CORNERS_HZ = (2.0, 20.0, 200.0)
 NOISE_STEP = 0.5
@@ -365,11 +366,11 @@ def _estimate_noise(rec: Record, params: Mapping[str, float], *, coloured: bool 
     lo, hi = np.log([1e-6 * p.m_k * p.g, 0.05, 1e-6]), np.log([0.5 * p.m_k * p.g, 1.0 / rec.ts, 0.05])
 
     held = sensor is not None and sensor.coloured
-    extra = (sensor.f_sensor, sensor.r_coloured) if held else ()
     if held:
+        # the coloured part held: its RMS does not scale with the others, so every level is searched
+        extra = (sensor.f_sensor, sensor.r_coloured)
         z0[2] = np.log(max(min(sensor.r_sensor, 0.05), 1e-6))
 
-    if held:
         def cost(z: np.ndarray) -> float:
             z = np.clip(z, lo, hi)
             try:
