@@ -75,6 +75,49 @@ def test_noise_levels_are_recovered_from_an_emulator_record(tmp_path):
     assert 1.0 < nm.f_force < 100.0      # the corner (truth 8 Hz) is only weakly identified by 6 s
 
 
+def test_the_likelihood_concentrated_on_the_ratios_is_the_likelihood_at_the_best_common_scale(tmp_path):
+    """Every noise level scaled alike leaves the filter's innovations as they are and scales their
+    variances: _scaled_nll's closed-form factor c gives the mean ``log s + e²/s`` of the levels
+    scaled by √c (the start covariance's fixed part is forgotten within the skipped samples), and
+    any other factor gives more."""
+    from maglev_cosim.diagnosis.replay import _scaled_nll, innovation_nll
+    rec = read_record(synth_record(tmp_path / "r.csv", duration=3.0, seed=5))
+    p = baseline_params()
+    unit = NoiseModel(q_force=1e-4, f_force=12.0, r_sensor=1e-3)
+    cost, c = _scaled_nll(predict(rec, p, unit, horizon_s=0.0))
+    scaled = lambda k: NoiseModel(unit.q_force * math.sqrt(k), unit.f_force, unit.r_sensor * math.sqrt(k))  # noqa: E731
+    assert 0.01 < c < 0.5                   # the unit levels' sensor noise is 4 times the record's
+    assert innovation_nll(rec, p, scaled(c)) == pytest.approx(cost, abs=1e-6)
+    for k in (0.7 * c, 1.4 * c):
+        assert innovation_nll(rec, p, scaled(k)) > cost + 1e-3
+    # held within a range: the cost there is the mean at the range's end
+    lo_cost, lo_c = _scaled_nll(predict(rec, p, unit, horizon_s=0.0), c_range=(2 * c, 10 * c))
+    assert lo_c == pytest.approx(2 * c) and lo_cost == pytest.approx(innovation_nll(rec, p, scaled(2 * c)), abs=1e-6)
+
+
+def test_the_disturbance_estimate_ends_at_the_likelihood_s_maximum(tmp_path):
+    """The concentrated search's estimate (q, f, r) is a maximum of the likelihood over all three
+    levels: none of them moved by 10 % either way lowers the mean ``log s + e²/s``; and on a record
+    with a 50 Hz pickup the baseline lacks, whose likelihood has a plateau where the sensor noise
+    takes the pickup, it ends on the deeper one where a random force does (the search from the
+    usual start without the grid ended on the plateau: a mean of -12.3 against -14.4)."""
+    from maglev_cosim.diagnosis.replay import innovation_nll
+    p = baseline_params()
+    pickup = {"periodic_disturbance": {"A_d": 0.008, "f_d": 50.0, "phi_d": 0.0}}
+    for name, effects in (("plain", {}), ("pickup", pickup)):
+        rec = read_record(synth_record(tmp_path / f"{name}.csv", effects=effects, duration=4.0, seed=11))
+        nm = estimate_noise(rec, p, coloured=False)
+        best = innovation_nll(rec, p, nm)
+        for field in ("q_force", "f_force", "r_sensor"):
+            for k in (0.9, 1.1):
+                moved = NoiseModel(**{**nm.__dict__, field: getattr(nm, field) * k})
+                assert innovation_nll(rec, p, moved) > best - 1e-4, (name, field, k)
+        if name == "pickup":
+            sensor_takes_it = NoiseModel(q_force=2e-4, f_force=4.5, r_sensor=1.2e-3)
+            assert best < innovation_nll(rec, p, sensor_takes_it) - 1.0
+            assert nm.q_force > 10 * 3e-3 * 8.4e-3 * 9.81      # the force took the pickup
+
+
 def test_a_disturbance_estimate_is_kept_for_the_same_record_and_model(tmp_path, monkeypatch):
     """estimate_noise keeps its last estimates: the same record and arguments give the same estimate
     without a new search; another model, another record (even with the same samples), another
