@@ -15,8 +15,8 @@ from maglev_cosim.loop.simulate import settled_start
 from maglev_cosim.plant.params import get_params
 from maglev_cosim.loop.pid import PID
 from maglev_cosim.records.record import Record, read_record
-from maglev_cosim.diagnosis.replay import (NOISE_RESTARTS, RESTART_MAXFEV, NoiseModel, baseline_params,
-                                           estimate_noise, minimize_restarted, predict)
+from maglev_cosim.diagnosis.replay import (NOISE_RESTARTS, RESTART_MAXFEV, NoiseModel, _scaled_nll, baseline_params,
+                                           estimate_noise, innovation_nll, minimize_restarted, predict)
 from maglev_cosim.records.emulator import LSB
 from maglev_cosim.records.synth import synth_record
 
@@ -80,7 +80,6 @@ def test_the_likelihood_concentrated_on_the_ratios_is_the_likelihood_at_the_best
     variances: _scaled_nll's closed-form factor c gives the mean ``log s + e²/s`` of the levels
     scaled by √c (the start covariance's fixed part is forgotten within the skipped samples), and
     any other factor gives more."""
-    from maglev_cosim.diagnosis.replay import _scaled_nll, innovation_nll
     rec = read_record(synth_record(tmp_path / "r.csv", duration=3.0, seed=5))
     p = baseline_params()
     unit = NoiseModel(q_force=1e-4, f_force=12.0, r_sensor=1e-3)
@@ -101,7 +100,6 @@ def test_the_disturbance_estimate_ends_at_the_likelihood_s_maximum(tmp_path):
     with a 50 Hz pickup the baseline lacks, whose likelihood has a plateau where the sensor noise
     takes the pickup, it ends on the deeper one where a random force does (the search from the
     usual start without the grid ended on the plateau: a mean of -12.3 against -14.4)."""
-    from maglev_cosim.diagnosis.replay import innovation_nll
     p = baseline_params()
     pickup = {"periodic_disturbance": {"A_d": 0.008, "f_d": 50.0, "phi_d": 0.0}}
     for name, effects in (("plain", {}), ("pickup", pickup)):
