@@ -32,8 +32,9 @@ import argparse
 import json
 import tempfile
 import time
-from pathlib import Path
 from collections.abc import Sequence
+from functools import partial
+from pathlib import Path
 
 import numpy as np
 
@@ -43,6 +44,7 @@ from maglev_cosim.diagnosis import CATALOGUE, pipeline
 from maglev_cosim.diagnosis.effects import DEFAULT_EFFECTS, TWINS
 from maglev_cosim.diagnosis.replay import baseline_params, estimate_noise, predict
 from maglev_cosim.plant.params import get_params
+from maglev_cosim.records import emulator_ivp
 from maglev_cosim.records.record import read_record
 from maglev_cosim.records.synth import draw_disturbance, synth_record
 
@@ -488,12 +490,10 @@ def main() -> None:
     if a.setting and a.emulator != "ivp":
         ap.error("--setting belongs to --emulator ivp")
     if a.emulator == "ivp":
-        from functools import partial
-
-        from maglev_cosim.records import emulator_ivp
-
-        settings = {k.strip(): (v.strip() if k.strip() in emulator_ivp.WORD_SETTINGS else float(v))
-                    for k, v in (item.split("=", 1) for item in a.setting)}
+        try:
+            settings = emulator_ivp.parse_settings(a.setting)
+        except ValueError as e:
+            ap.error(str(e))
         SYNTH, supported = partial(emulator_ivp.synth_record, settings=settings), set(emulator_ivp.EFFECTS)
         POWER_CASES = {k: v for k, v in POWER_CASES.items() if set(v) <= supported}
     if a.family:

@@ -292,6 +292,17 @@ def test_record_is_read_back_and_diagnosed(tmp_path):
     assert d.verdict.verdict
 
 
+def test_settings_are_read_from_name_value_texts():
+    """``--setting NAME=VALUE``: words stay words, numbers (inf too) become numbers, for the command
+    line and the benchmark alike."""
+    assert E.parse_settings([" pid_derivative = measurement", "f_y=inf", "pid_tf=0.001"]) == {
+        "pid_derivative": "measurement", "f_y": math.inf, "pid_tf": 0.001}
+    with pytest.raises(ValueError, match="expected NAME=VALUE"):
+        E.parse_settings(["f_y"])
+    with pytest.raises(ValueError, match="'abc' is not a number"):
+        E.parse_settings(["pid_tf=abc"])
+
+
 def test_synth_record_refuses_what_it_does_not_have(tmp_path):
     with pytest.raises(ValueError, match="not in this emulator"):
         E.synth_record(tmp_path / "r.csv", effects={"slew_rate": {"di_max": 20.0}}, duration=1.0)

@@ -432,17 +432,12 @@ def cmd_synth(a: argparse.Namespace) -> dict:
         params[k.strip()] = _finite(v)
     if a.period is not None and a.reference not in ("square", "sine"):
         raise CliError(f"--period applies to a square or sine reference, not {a.reference}")
-    settings: dict[str, float | str] = {}
-    for spec in a.setting or []:
-        if a.emulator != "ivp":
-            raise CliError(f"--setting {spec!r}: settings belong to the independent emulator (--emulator ivp)")
-        if "=" not in spec:
-            raise CliError(f"--setting {spec!r}: expected NAME=VALUE")
-        k, v = (x.strip() for x in spec.split("=", 1))
-        try:
-            settings[k] = v if k in emulator_ivp.WORD_SETTINGS else float(v)      # f_y = inf: white sensor noise
-        except ValueError:
-            raise CliError(f"--setting {spec!r}: {v!r} is not a number") from None
+    if a.setting and a.emulator != "ivp":
+        raise CliError(f"--setting {a.setting[0]!r}: settings belong to the independent emulator (--emulator ivp)")
+    try:
+        settings = emulator_ivp.parse_settings(a.setting or [])
+    except ValueError as e:
+        raise CliError(str(e)) from None
     kw, write = {}, synth_record
     if a.emulator == "ivp":
         kw, write = {"settings": settings}, emulator_ivp.synth_record   # the independent emulator, same arguments

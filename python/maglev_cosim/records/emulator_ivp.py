@@ -69,6 +69,28 @@ SETTINGS = ("pid_offset", "f_y", "method", "rtol", "pid_tf", "pid_derivative")
 WORD_SETTINGS = ("method", "pid_derivative")
 
 
+def _typed(name: str, value) -> float | str:
+    """A setting's value as the emulator takes it: a word (:data:`WORD_SETTINGS`) or a number."""
+    return str(value).strip() if name in WORD_SETTINGS else float(value)
+
+
+def parse_settings(specs) -> dict[str, float | str]:
+    """``NAME=VALUE`` texts (``--setting``) as settings of :func:`synth_record`. Raises
+    ``ValueError`` naming the text that is not ``NAME=VALUE`` or whose number is not one
+    (``inf`` is one: ``f_y = inf`` is white sensor noise); the names are checked by
+    :func:`synth_record`."""
+    out: dict[str, float | str] = {}
+    for spec in specs:
+        if "=" not in spec:
+            raise ValueError(f"--setting {spec!r}: expected NAME=VALUE")
+        k, v = (x.strip() for x in spec.split("=", 1))
+        try:
+            out[k] = _typed(k, v)
+        except ValueError:
+            raise ValueError(f"--setting {spec!r}: {v!r} is not a number") from None
+    return out
+
+
 @dataclass(frozen=True)
 class IvpConfig:
     """The emulated rig: plant (SI units), effects, controller timing, noise, converters, numerics."""
@@ -448,7 +470,7 @@ def synth_record(out: Path, *, effects: dict[str, dict[str, float]] | None = Non
     bad = sorted(set(own) - set(SETTINGS))
     if bad:
         raise ValueError(f"unknown emulator setting(s) {', '.join(bad)}: choose from {', '.join(SETTINGS)}")
-    own = {k: (str(v) if k in WORD_SETTINGS else float(v)) for k, v in own.items()}
+    own = {k: _typed(k, v) for k, v in own.items()}
     cfg = IvpConfig().with_values(**{k: float(v) for k, v in (params or {}).items()}, **values, **dist, **own,
                                   seed=int(seed))
     if not noise:
