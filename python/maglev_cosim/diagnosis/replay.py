@@ -154,14 +154,21 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
                         stride=stride, f_sensor=noise.f_sensor, r_coloured=noise.r_coloured)
 
 
-def _nll(out: Mapping[str, np.ndarray], mask: np.ndarray | None = None, skip: int = 200) -> float:
-    """Mean of ``log(s) + e²/s`` over the usable innovations from ``skip`` on (within ``mask``)."""
+def _usable(out: Mapping[str, np.ndarray], mask: np.ndarray | None, skip: int) -> tuple[np.ndarray, np.ndarray]:
+    """The innovations e and their variances s that a likelihood uses: finite, s > 0, from ``skip``
+    on, within ``mask`` (all when None)."""
     e, s = out["innov"], out["innov_var"]
     ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
     ok[:skip] = False
     if mask is not None:
         ok &= mask
-    return float(np.mean(np.log(s[ok]) + e[ok] ** 2 / s[ok])) if ok.any() else float("inf")
+    return e[ok], s[ok]
+
+
+def _nll(out: Mapping[str, np.ndarray], mask: np.ndarray | None = None, skip: int = 200) -> float:
+    """Mean of ``log(s) + e²/s`` over the usable innovations from ``skip`` on (within ``mask``)."""
+    e, s = _usable(out, mask, skip)
+    return float(np.mean(np.log(s) + e ** 2 / s)) if len(e) else float("inf")
 
 
 def _scaled_nll(out: Mapping[str, np.ndarray], skip: int = 200,
@@ -177,16 +184,14 @@ def _scaled_nll(out: Mapping[str, np.ndarray], skip: int = 200,
     fewer for the search (Harvey 1989, *Forecasting, structural time series models and the Kalman
     filter*, Sec. 3.4). Held within ``c_range`` (the levels' bounds; a record without noise has
     ``mean(e²/s)`` near 0), the mean is ``mean(log s) + log c + mean(e²/s)/c``."""
-    e, s = out["innov"], out["innov_var"]
-    ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
-    ok[:skip] = False
-    if not ok.any():
+    e, s = _usable(out, None, skip)
+    if not len(e):
         return float("inf"), 1.0
-    m = float(np.mean(e[ok] ** 2 / s[ok]))
+    m = float(np.mean(e ** 2 / s))
     c = float(np.clip(m, *c_range))
     if not c > 0:
         return float("inf"), 1.0
-    return float(np.mean(np.log(s[ok]))) + float(np.log(c)) + m / c, c
+    return float(np.mean(np.log(s))) + float(np.log(c)) + m / c, c
 
 
 def innovation_nll(rec: Record, params: Mapping[str, float], noise: NoiseModel, skip: int = 200,
