@@ -209,6 +209,11 @@ static int ctl_check(const MaglevController *c, double u_hold, char *msg, size_t
         snprintf(msg, len, "initial input u_hold %g is not finite", u_hold);
         return -1;
     }
+    if ((c->from_reading != 0 && c->from_reading != 1) || (c->from_reading && !isfinite(c->y_before))) {
+        snprintf(msg, len, "controller start: from_reading = %d must be 0 or 1, and y_before = %g finite with 1",
+                 c->from_reading, c->y_before);
+        return -1;
+    }
     return 0;
 }
 
@@ -217,13 +222,22 @@ static double sf_raw(const MaglevController *c, const CtlState *s, double w) {
            c->k_int * s->q;
 }
 
-/* Settled start (maglev_replay.h): x0 is the plant's state (x, v, i), w0 the first reference. */
+/* Settled start (maglev_replay.h): x0 is the plant's state (x, v, i), w0 the first reference.
+ * From a reading (from_reading): the loop was at rest before t = 0 with the reading at y_before,
+ * the error e_b = w0 - y_before standing and the PID's output holding the plant, so its integrator
+ * is the holding output less the proportional part and its derivative's argument is e_b (or
+ * -y_before), without a kick. A record cut from a running loop reads away from its reference while
+ * the integrator still creeps (project emulator, seed 7701, 0.1 s after a step: e_b = 0.012 MU);
+ * started at zero error, the replay's first sample kicked the output by kd*e_b/ts and its
+ * integrator sat kp*e_b off the rig's. */
 static void ctl_start(const MaglevController *c, CtlState *s, double u_hold, const double x0[3], double w0) {
     memset(s, 0, sizeof *s);
-    s->outer.integral = c->kind == 1 ? x0[2] : u_hold;
+    const int from = c->kind != 2 && c->from_reading;
+    const double e_b = from ? w0 - c->y_before : 0.0;
+    s->outer.integral = (c->kind == 1 ? x0[2] : u_hold) - (from ? c->pid.kp * e_b : 0.0);
     s->inner.integral = u_hold;
-    /* a derivative of -y starts settled at the first reference (outer) and the start current (inner) */
-    s->outer.e_prev = c->pid.d_on_y ? -w0 : 0.0;
+    /* a derivative of -y starts settled at the reading before (outer) and the start current (inner) */
+    s->outer.e_prev = c->pid.d_on_y ? -(from ? c->y_before : w0) : e_b;
     s->inner.e_prev = c->kind == 1 && c->inner.d_on_y ? -x0[2] : 0.0;
     if (c->kind == 2) {
         for (int j = 0; j < 3; j++) s->xh[j] = x0[j] - c->x_eq[j];

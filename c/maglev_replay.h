@@ -24,7 +24,9 @@ typedef struct {
 
 /* The PID's memory between samples: integrator I[k-1], the derivative's argument at k-1 (e[k-1], or
  * -y[k-1] with d_on_y), derivative term D[k-1]. Settled start: integral = the holding input,
- * d_prev = 0, e_prev = 0 (or -w[0] with d_on_y: the reading was at the first reference, as e = 0 says). */
+ * d_prev = 0, e_prev = 0 (or -w[0] with d_on_y: the reading was at the first reference, as e = 0 says);
+ * from a reading y_b with an error e_b = w[0] - y_b standing (MaglevController.from_reading):
+ * integral = the holding input - kp*e_b, e_prev = e_b (or -y_b), so the output holds the plant. */
 typedef struct { double integral, e_prev, d_prev; } MaglevPidState;
 
 /* Checks a PID's settings (finite, ts > 0, u_min < u_max, tf >= 0, anti_windup 0 to 3, the band, d_on_y 0 or 1).
@@ -46,7 +48,7 @@ double maglev_pid_step(const MaglevPid *pid, MaglevPidState *s, double w, double
  *       u = clip(u_eq + k_w*(w - y_eq) - K*xh - k_int*q, u_min, u_max)
  *       q = q + ts*(w - y)     (held while u saturates and q would push further: anti_windup 1)
  *       xh = Phi*xh + Gam*(u - u_eq)                                        time update
- * Settled start: a PID's integrator holds u_hold; a cascade's position loop holds the plant's
+ * Settled start: a PID's output holds u_hold (above); a cascade's position loop holds the plant's
  * current at the start and its current loop u_hold; the observer starts at the plant's state, q
  * where u = u_hold. */
 typedef struct {
@@ -55,6 +57,12 @@ typedef struct {
     MaglevPid inner; /* the cascade's current loop */
     double Phi[3][3], Gam[3], C[2][3], L[3][2], K[3];
     double k_w, k_int, x_eq[3], u_eq, y_eq, i_eq;
+    /* Where the settled start (above) stood before t = 0 (a PID and a cascade's position loop):
+     * 0, at zero error with the reading at the first reference w[0] (a simulation whose reference
+     * steps at t = 0: the step acts at the first sample); 1, at the reading y_before [MU] with the
+     * error w[0] - y_before standing (a record cut from a running loop: the output holds u_hold). */
+    int from_reading;
+    double y_before;
 } MaglevController;
 
 /* The controller alone over given w, y [MU] and i [A] (i may be NULL for a PID), n samples,

@@ -14,6 +14,7 @@ from maglev_cosim.loop import fast_loop
 from maglev_cosim.loop.controllers import (Cascade, ControllerError, StateFeedback, design_state_feedback, discrete_plant,
                                       load_controller, start)
 from maglev_cosim.loop.simulate import reference_signal, simulate
+from maglev_cosim.plant import formulas
 from maglev_cosim.plant.params import get_params
 from maglev_cosim.loop.pid import PID
 from maglev_cosim.rigs import load_rig
@@ -49,6 +50,11 @@ def test_python_and_c_controllers_agree_on_the_same_signals(lqi):
         x0 = (X, 0.0, 0.55)
         c = fast_loop.control(ctl, w, y, i, 0.37, x0)
         run = start(ctl, 0.37, x0, w[0])
+        py = np.array([run.step(w[k], y[k], i[k]) for k in range(n)])
+        assert np.max(np.abs(c - py)) < 1e-12, type(ctl).__name__
+        # settled at a reading away from the first reference, the error standing (y_before)
+        c = fast_loop.control(ctl, w, y, i, 0.37, x0, y_before=0.39)
+        run = start(ctl, 0.37, x0, w[0], 0.39)
         py = np.array([run.step(w[k], y[k], i[k]) for k in range(n)])
         assert np.max(np.abs(c - py)) < 1e-12, type(ctl).__name__
         assert np.any(c == ctl.u_max) or np.any(c == ctl.u_min)   # a limit was exercised
@@ -274,7 +280,8 @@ def test_a_record_declares_its_controller_file_and_the_replay_runs_it(tmp_path):
     ctl = load_controller(tmp_path / "ctl" / "cascade.toml", "ce152").controller
     assert ctl == CASCADE
     w = reference_signal("step", 1.0, base=0.394, amplitude=0.04, t_step=0.1)
-    r = simulate(LAGGED, w, controller=ctl)
+    # settled at its first reference, as the replay of a record starts (replay.py)
+    r = simulate(LAGGED, w, controller=ctl, x_op=formulas.position(LAGGED, 0.394))
     f = r.to_csv(tmp_path / "rec.csv", controller_file="ctl/cascade.toml")
     rec = read_record(f)
     assert record_controller(rec) == CASCADE and (rec.u_min, rec.u_max) == (0.0, 1.0)

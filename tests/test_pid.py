@@ -94,6 +94,32 @@ def test_the_c_pid_and_the_python_pid_are_one_equation(cfg):
     py = np.array([ctl.step(a, b) for a, b in zip(w, y)])
     assert np.mean(c == cfg.u_max) > 0.01 and np.mean(c == cfg.u_min) > 0.01   # both limits reached
     assert np.array_equal(c, py)
+    # settled at a reading away from the first reference (y_before), the error standing
+    c = fast_loop.control(cfg, w, y, None, 0.37, y_before=0.385)
+    ctl = cfg.start(0.37, w[0], 0.385)
+    assert np.array_equal(c, np.array([ctl.step(a, b) for a, b in zip(w, y)]))
+
+
+@pytest.mark.parametrize("cfg", [PID(), PID(tf=2e-3), PID(derivative="measurement"), PID(anti_windup="clamping")])
+def test_a_loop_settled_away_from_its_reference_holds_its_output(cfg):
+    """The settled start at a first reading y0 away from the first reference w0 (a record cut from
+    a running loop whose integrator still creeps): the output holds ``u_hold`` while the reading
+    stays, then moves by ki·ts·e0 a sample (the integrator alone); no derivative kick, no jump by
+    kp·e0. At y0 = w0 the start is the settled start at zero error."""
+    w0, y0, hold, n = 0.40, 0.388, 0.37, 6
+    e0 = w0 - y0
+    w, y = np.full(n, w0), np.full(n, y0)
+    c = fast_loop.control(cfg, w, y, None, hold, y_before=y0)
+    expected = hold + cfg.ki * cfg.ts * e0 * np.arange(1, n + 1)
+    assert np.allclose(c, expected, rtol=0, atol=1e-12)
+    py = cfg.start(hold, w0, y0)
+    assert np.allclose([py.step(w0, y0) for _ in range(n)], expected, rtol=0, atol=1e-12)
+    at_w = cfg.start(hold, w0)             # y0 left out: the reading at the reference
+    assert at_w.integral == hold and at_w.e_prev == (-w0 if cfg.derivative == "measurement" else 0.0)
+    # at zero error before t = 0 (a simulation whose reference steps at t = 0) the step acts at once
+    kicked = fast_loop.pid_only(cfg, w, y, u_hold=hold)
+    assert kicked[0] - hold == pytest.approx(cfg.kp * e0 + cfg.ki * cfg.ts * e0 + cfg.kd * e0 / (cfg.tf + cfg.ts),
+                                             abs=1e-12)
 
 
 def test_the_derivative_of_the_reading_spares_the_output_the_kick_of_a_reference_step():

@@ -43,6 +43,7 @@ from ..loop import fast_loop
 from ..plant import fast
 from ..records.measured import true_runs
 from ..records.record import Record
+from ..records.settled import standing_reading
 from . import blackbox as bb
 from .acceptance import fit_blocks
 from .problem import on_fit_steps
@@ -204,10 +205,11 @@ def _compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
     hs = [max(1, int(round(h / rec.ts))) for h in horizons_s]
     kw = dict(q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizons=hs, stride=STRIDE,
               f_sensor=noise.f_sensor, r_coloured=noise.r_coloured)
+    closed_kw = dict(kw, y_before=standing_reading(rec))
     # both predictions run in C, which cffi calls without the GIL: on two threads, while this one
     # fits the black boxes (their results are read where the skills are computed)
     with ThreadPoolExecutor(max_workers=2) as pool:
-        jobs = (pool.submit(fast_loop.predict_closed, start, record_controller(rec), rec.w, rec.y, rec.u, u_hold, **kw),
+        jobs = (pool.submit(fast_loop.predict_closed, start, record_controller(rec), rec.w, rec.y, rec.u, u_hold, **closed_kw),
                 pool.submit(fast.predict_horizons, start, rec.y, rec.u, ts=rec.ts, **kw))
         if black_box is None or tuple(black_box.horizons_s) != tuple(horizons_s):
             black_box = _black_box_predictions(rec, horizons_s, boxes)

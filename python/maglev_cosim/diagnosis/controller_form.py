@@ -33,6 +33,7 @@ from scipy.optimize import minimize_scalar
 from ..loop import fast_loop
 from ..loop.pid import DERIVATIVE, PID
 from ..records.record import Record
+from ..records.settled import from_settled, standing_reading
 from .replay import record_controller
 from .residual import check_controller
 
@@ -90,7 +91,7 @@ def misfit(rec: Record, pid: PID) -> tuple[float, int]:
     u_hold = float(rec.u[0])
     d = ok = None
     for _ in range(2):
-        u_pid = fast_loop.control(pid, rec.w, rec.y, None, u_hold)
+        u_pid = fast_loop.control(pid, rec.w, rec.y, None, u_hold, y_before=standing_reading(rec))
         ok = (u_pid > pid.u_min) & (u_pid < pid.u_max) & (rec.u > pid.u_min) & (rec.u < pid.u_max)
         ok[:SKIP] = False
         if not ok.any():
@@ -126,9 +127,14 @@ def identify(rec: Record) -> ControllerForm | None:
 
 
 def identified(rec: Record, say=None) -> tuple[Record, ControllerForm | None]:
-    """``rec`` checked (:func:`~.residual.check_controller`: a u its controller did not make fails
+    """``rec`` as the diagnosis reads it: from where its loop is settled
+    (:func:`~maglev_cosim.records.settled.from_settled`, with a warning where that is not its first
+    sample), checked (:func:`~.residual.check_controller`: a u its controller did not make fails
     at once), and with the identified form of its PID where :func:`identify` adopts one: the record
     with that ``tf`` and a warning naming both misfits. Returns the record and the form."""
+    rec, cut = from_settled(rec)
+    if cut and say:
+        say(cut)
     check_controller(rec)
     form = identify(rec)
     if form is None or not form.adopted:

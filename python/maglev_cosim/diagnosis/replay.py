@@ -1,9 +1,10 @@
 """Replaying a record in closed loop on the C plant (cffi fast path).
 
 The record's controller and reference drive the model (:func:`maglev_cosim.loop.simulate.simulate`); the
-loop starts settled at the first reading ``y[0]``: the ball at rest where the model's sensor
-reads ``y[0]``, the current at equilibrium there, ``e[−1] = 0`` and the integrator holding the
-equilibrium input.
+loop starts settled where the record began (:func:`~maglev_cosim.records.settled.standing_reading`,
+the mean of its first readings, ``y_b``): the ball at rest where the model's sensor reads ``y_b``,
+the current at equilibrium there, and the controller's output holding the equilibrium input with the
+error ``w[0] − y_b`` standing (a record cut from a running loop whose integrator still creeps).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from ..loop.pid import PID
 from ..plant import fast, formulas
 from ..plant.params import as_params, get_params
 from ..records.record import Record
+from ..records.settled import standing_reading
 from .acceptance import accept_nll, fit_blocks
 from .memo import Memo
 
@@ -39,11 +41,12 @@ def record_controller(rec: Record) -> Controller:
 
 def _settled_at_first_reading(rec: Record, params: Mapping[str, float] | np.ndarray) -> tuple[np.ndarray, float]:
     """``params`` checked as the FMU would, as a parameter vector with the start state where every
-    replay of a record starts: at rest where the model reads ``y[0]``, the current at equilibrium
+    replay of a record starts: at rest where the model reads the record's standing reading
+    (:func:`~maglev_cosim.records.settled.standing_reading`), the current at equilibrium
     there (:func:`~maglev_cosim.loop.simulate.settled_start`); and the hold input [MU]. It works on the
     vector: a fit replays thousands of times, and building parameter objects cost a third of each."""
     pv = fast.param_vector(params)
-    return settled_start_vector(pv, formulas.position(pv, float(rec.y[0])))
+    return settled_start_vector(pv, formulas.position(pv, standing_reading(rec)))
 
 
 def replay(rec: Record, params: Mapping[str, float] | np.ndarray, *, w: np.ndarray | None = None) -> dict[str, np.ndarray]:
@@ -66,7 +69,7 @@ def replay_injected(rec: Record, params: Mapping[str, float] | np.ndarray, *, du
     start as :func:`replay`; with no injection the same result."""
     start, u_hold = _settled_at_first_reading(rec, params)
     return fast_loop.closed_loop(start, rec.w if w is None else w, pid=record_controller(rec), u_hold=u_hold,
-                            du=du, dF=dF, dy=dy, y_step=y_step, u_step=u_step)
+                                 du=du, dF=dF, dy=dy, y_step=y_step, u_step=u_step, y_before=standing_reading(rec))
 
 # ----------------------------------------------------------------------------- prediction-error replay
 
@@ -151,7 +154,8 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
     horizon = horizon_samples(horizon_s, rec.ts)
     return fast_loop.predict(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold,
                         q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizon=horizon,
-                        stride=stride, f_sensor=noise.f_sensor, r_coloured=noise.r_coloured)
+                        stride=stride, f_sensor=noise.f_sensor, r_coloured=noise.r_coloured,
+                        y_before=standing_reading(rec))
 
 
 def _usable(out: Mapping[str, np.ndarray], mask: np.ndarray | None, skip: int) -> tuple[np.ndarray, np.ndarray]:

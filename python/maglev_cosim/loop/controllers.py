@@ -94,9 +94,11 @@ class Cascade:
         """Output limit [MU]."""
         return self.inner.u_max
 
-    def start(self, u_hold: float, x0: tuple[float, float, float] = (0.0, 0.0, 0.0), w0: float = 0.0) -> RunningCascade:
-        """Running, settled: the position loop holds the current ``x0[2]`` [A], the current loop ``u_hold`` [MU]."""
-        return RunningCascade(self, u_hold, x0, w0)
+    def start(self, u_hold: float, x0: tuple[float, float, float] = (0.0, 0.0, 0.0), w0: float = 0.0,
+              y0: float | None = None) -> RunningCascade:
+        """Running, settled: the position loop holds the current ``x0[2]`` [A] at the first reference
+        ``w0`` and reading ``y0`` [MU] (None: ``w0``), the current loop ``u_hold`` [MU]."""
+        return RunningCascade(self, u_hold, x0, w0, y0)
 
     def c_settings(self) -> dict[str, Any]:
         """The settings as C's ``MaglevController`` holds them."""
@@ -106,9 +108,9 @@ class Cascade:
 class RunningCascade:
     """A running :class:`Cascade`: :meth:`step` is one sample."""
 
-    def __init__(self, cfg: Cascade, u_hold: float, x0, w0: float = 0.0) -> None:
+    def __init__(self, cfg: Cascade, u_hold: float, x0, w0: float = 0.0, y0: float | None = None) -> None:
         self.cfg = cfg
-        self.outer, self.inner = cfg.outer.start(float(x0[2]), w0), cfg.inner.start(u_hold, float(x0[2]))
+        self.outer, self.inner = cfg.outer.start(float(x0[2]), w0, y0), cfg.inner.start(u_hold, float(x0[2]))
 
     def step(self, w: float, y: float, i: float = math.nan) -> float:
         """``u[k]`` [MU] from the reference ``w`` [MU], reading ``y`` [MU] and current ``i`` [A]."""
@@ -226,10 +228,13 @@ class RunningStateFeedback:
 Controller = Union[PID, Cascade, StateFeedback]
 
 
-def start(controller: Controller, u_hold: float, x0=(0.0, 0.0, 0.0), w0: float = 0.0):
-    """A running controller, settled (see each type's ``start``): ``.step(w, y, i)`` gives ``u`` [MU]."""
+def start(controller: Controller, u_hold: float, x0=(0.0, 0.0, 0.0), w0: float = 0.0, y0: float | None = None):
+    """A running controller, settled (see each type's ``start``) at the first reference ``w0`` and
+    reading ``y0`` [MU] (None: ``w0``): ``.step(w, y, i)`` gives ``u`` [MU]."""
     if isinstance(controller, PID):
-        return _RunningPID(controller, u_hold, w0)
+        return _RunningPID(controller, u_hold, w0, y0)
+    if isinstance(controller, Cascade):
+        return controller.start(u_hold, x0, w0, y0)
     return controller.start(u_hold, x0, w0)
 
 

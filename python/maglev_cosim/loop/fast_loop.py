@@ -15,15 +15,20 @@ from .controllers import Controller, c_settings
 from .pid import PID
 
 
-def _controller(m: SimpleNamespace, controller):
-    """Any controller (:data:`maglev_cosim.loop.controllers.Controller`) as a C ``MaglevController``."""
-    return m.ffi.new("MaglevController *", c_settings(controller or PID()))
+def _controller(m: SimpleNamespace, controller, y_before: float | None = None):
+    """Any controller (:data:`maglev_cosim.loop.controllers.Controller`) as a C ``MaglevController``,
+    settled before t = 0 at zero error (``y_before`` None) or at the reading ``y_before`` [MU] with
+    the error ``w[0] − y_before`` standing (``from_reading``, ``c/maglev_replay.h``)."""
+    settings = c_settings(controller or PID())
+    if y_before is not None:
+        settings = {**settings, "from_reading": 1, "y_before": float(y_before)}
+    return m.ffi.new("MaglevController *", settings)
 
 
 def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray, *,
                 pid: Controller | None = None, u_hold: float | None = None, du: np.ndarray | None = None,
                 dF: np.ndarray | None = None, dy: np.ndarray | None = None, y_step: float = 0.0,
-                u_step: float = 0.0) -> dict[str, np.ndarray]:
+                u_step: float = 0.0, y_before: float | None = None) -> dict[str, np.ndarray]:
     """The closed loop (plant + controller) over reference ``w`` [MU] in one C call: the low
     level of :func:`maglev_cosim.loop.simulate.simulate` (``backend="fast"``), which most callers want.
 
@@ -34,7 +39,10 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
     ``dy`` [MU]: signals injected at the actuator (added to the controller's output on its way to
     the plant), on the ball (a force held over each sample) and at the sensor (added to the
     reading), each of the length of ``w`` or None. ``y_step``, ``u_step`` [MU]: the A/D and D/A
-    steps to which the reading and the controller's output are rounded (0: no rounding). Returns arrays ``t`` [s], ``w``, ``u`` (the
+    steps to which the reading and the controller's output are rounded (0: no rounding).
+    ``y_before`` [MU]: the reading at which the loop stood before t = 0, its error ``w[0] − y_before``
+    standing (a record cut from a running loop); None: at zero error (a reference step at t = 0 acts
+    at the first sample). Returns arrays ``t`` [s], ``w``, ``u`` (the
     controller's output), ``y`` [MU], ``x`` [m], ``v`` [m/s], ``i`` [A]."""
     m = fast._lib()
     pv = fast._param_vector(fast._as_mapping(params))
@@ -44,7 +52,7 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
     if u_hold is None:
         u_hold = formulas.equilibrium_input(dict(zip(fast._defaults(), pv)))
     out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
-    cpid = _controller(m, pid)
+    cpid = _controller(m, pid, y_before)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     inj = []
@@ -66,13 +74,15 @@ def closed_loop(params: PlantParams | Mapping[str, float] | None, w: np.ndarray,
 
 def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w: np.ndarray, y: np.ndarray,
             u: np.ndarray, u_hold: float, *, q_force: float, f_force: float, r_sensor: float, horizon: int,
-            stride: int = 1, f_sensor: float = 0.0, r_coloured: float = 0.0) -> dict[str, np.ndarray]:
+            stride: int = 1, f_sensor: float = 0.0, r_coloured: float = 0.0,
+            y_before: float | None = None) -> dict[str, np.ndarray]:
     """The prediction-error replay in one C call (``maglev_replay_predict``, ``c/maglev_replay.h``):
     an extended Kalman filter on the plant, driven by the measured ``u`` and corrected by the
     measured ``y`` [MU], predicting the closed loop ``horizon`` samples ahead from every
     ``stride``-th sample. ``q_force`` [N] and ``f_force`` [Hz]: RMS and corner of the random force
     on the ball; ``r_sensor`` [MU]: RMS of the white sensor noise; ``f_sensor`` [Hz], ``r_coloured``
-    [MU]: corner and RMS of a coloured part beside it (``f_sensor`` 0: none). Returns arrays ``y_pred``, ``u_pred``
+    [MU]: corner and RMS of a coloured part beside it (``f_sensor`` 0: none); ``y_before``: the
+    controller's start, as :func:`closed_loop`'s. Returns arrays ``y_pred``, ``u_pred``
     (NaN where no prediction ends), ``innov`` and ``innov_var`` (one-step innovations [MU] and
     their variances [MU²])."""
     m = fast._lib()
@@ -85,7 +95,7 @@ def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w
     filt = fast._filter(m, q_force, f_force, r_sensor, horizon, stride, False, f_sensor, r_coloured)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    rc = m.lib.maglev_replay_predict(ptr(pv), _controller(m, pid), filt,
+    rc = m.lib.maglev_replay_predict(ptr(pv), _controller(m, pid, y_before), filt,
                                      *(ptr(a) for a in arrays), n, float(u_hold),
                                      *(ptr(out[k]) for k in ("y_pred", "u_pred", "innov", "innov_var")), msg, 256)
     if rc != 0:
@@ -96,14 +106,16 @@ def predict(params: PlantParams | Mapping[str, float] | None, pid: Controller, w
 def predict_closed(params: PlantParams | Mapping[str, float] | None, controller: Controller, w: np.ndarray,
                    y: np.ndarray, u: np.ndarray, u_hold: float, *, q_force: float, f_force: float, r_sensor: float,
                    horizons: Sequence[int], stride: int = 1, current: np.ndarray | None = None,
-                   r_current: float = 0.0, f_sensor: float = 0.0, r_coloured: float = 0.0) -> dict[str, np.ndarray]:
+                   r_current: float = 0.0, f_sensor: float = 0.0, r_coloured: float = 0.0,
+                   y_before: float | None = None) -> dict[str, np.ndarray]:
     """The closed loop predicted at several ``horizons`` [samples] in one C call
     (``maglev_replay_predict_closed``): the filter follows the measured reading ``y`` [MU] (and the
     measured coil ``current`` [A], white noise of RMS ``r_current``, when given), driven by the
     measured ``u``; from every ``stride``-th sample the plant and the ``controller`` run on their own
     predicted readings and current, driven by the reference ``w`` [MU] alone. Returns ``y_pred``,
     ``u_pred``, ``i_pred`` (one row per horizon; NaN where no prediction ends), ``innov``,
-    ``innov_var``, ``d``, ``d_sd`` as :func:`maglev_cosim.plant.fast.predict_horizons`."""
+    ``innov_var``, ``d``, ``d_sd`` as :func:`maglev_cosim.plant.fast.predict_horizons`. ``y_before``:
+    the controller's start, as :func:`closed_loop`'s."""
     m = fast._lib()
     pv = fast._param_vector(fast._as_mapping(params))
     (y, u), n, cur = fast._measured_inputs(y, u, current)
@@ -116,7 +128,7 @@ def predict_closed(params: PlantParams | Mapping[str, float] | None, controller:
     filt = fast._filter(m, q_force, f_force, r_sensor, max(hs, default=0), stride, False, f_sensor, r_coloured)
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
-    rc = m.lib.maglev_replay_predict_closed(ptr(pv), _controller(m, controller), filt, ptr(w), ptr(y), ptr(u),
+    rc = m.lib.maglev_replay_predict_closed(ptr(pv), _controller(m, controller, y_before), filt, ptr(w), ptr(y), ptr(u),
                                             m.ffi.NULL if cur is None else ptr(cur), float(r_current), n,
                                             float(u_hold), len(hs), m.ffi.new("int[]", hs),
                                             *(ptr(out[k]) for k in ("y_pred", "u_pred", "i_pred", "innov", "innov_var",
@@ -132,10 +144,11 @@ def pid_only(pid: PID, w: np.ndarray, y: np.ndarray, u_hold: float) -> np.ndarra
 
 
 def control(controller: Controller, w: np.ndarray, y: np.ndarray, current: np.ndarray | None, u_hold: float,
-            x0: tuple[float, float, float] | None = None) -> np.ndarray:
+            x0: tuple[float, float, float] | None = None, y_before: float | None = None) -> np.ndarray:
     """Any controller alone (``maglev_replay_control``) over given reference ``w`` and reading ``y``
     [MU] and coil ``current`` [A] (a cascade or a state feedback needs it), settled at ``u_hold``
-    [MU] with the plant at ``x0`` = (position [m], velocity [m/s], current [A]): its outputs [MU]."""
+    [MU] with the plant at ``x0`` = (position [m], velocity [m/s], current [A]) (``y_before``: as
+    :func:`closed_loop`'s): its outputs [MU]."""
     m = fast._lib()
     w = np.ascontiguousarray(w, dtype=float)
     y = np.ascontiguousarray(y, dtype=float)
@@ -146,7 +159,7 @@ def control(controller: Controller, w: np.ndarray, y: np.ndarray, current: np.nd
     msg = m.ffi.new("char[256]")
     ptr = lambda a: m.ffi.cast("double *", m.ffi.from_buffer(a))  # noqa: E731
     x0a = None if x0 is None else np.ascontiguousarray(x0, dtype=float)
-    if m.lib.maglev_replay_control(_controller(m, controller), ptr(w), ptr(y), m.ffi.NULL if cur is None else ptr(cur),
+    if m.lib.maglev_replay_control(_controller(m, controller, y_before), ptr(w), ptr(y), m.ffi.NULL if cur is None else ptr(cur),
                                    len(w), float(u_hold), m.ffi.NULL if x0a is None else ptr(x0a), ptr(u), msg,
                                    256) != 0:
         raise ValueError(m.ffi.string(msg).decode())

@@ -92,10 +92,10 @@ class PID:
         """A copy with some settings changed."""
         return replace(self, **changes)
 
-    def start(self, u_hold: float = 0.0, w0: float = 0.0) -> DiscretePID:
-        """A running controller, settled: integrator at ``u_hold`` [MU], previous error 0 (the
-        derivative of the measurement: previous reading at the first reference ``w0`` [MU])."""
-        return DiscretePID(self, u_hold, w0)
+    def start(self, u_hold: float = 0.0, w0: float = 0.0, y0: float | None = None) -> DiscretePID:
+        """A running controller, settled (:meth:`DiscretePID.reset`): output ``u_hold`` [MU] at the
+        first reference ``w0`` and first reading ``y0`` [MU] (None: ``w0``)."""
+        return DiscretePID(self, u_hold, w0, y0)
 
     def c_settings(self) -> dict[str, float | int]:
         """The settings as the C replay's ``MaglevPid`` holds them."""
@@ -113,16 +113,20 @@ class DiscretePID:
     """A running :class:`PID`: :meth:`step` is one sample of the difference equation. The C replay
     (``c/maglev_replay.c``) has the same equation; ``tests/test_pid.py`` cross-checks the two."""
 
-    def __init__(self, cfg: PID | None = None, u_hold: float = 0.0, w0: float = 0.0) -> None:
+    def __init__(self, cfg: PID | None = None, u_hold: float = 0.0, w0: float = 0.0, y0: float | None = None) -> None:
         self.cfg = cfg or PID()
-        self.reset(u_hold, w0=w0)
+        self.reset(u_hold, w0=w0, y0=y0)
 
-    def reset(self, u_hold: float, e_prev: float = 0.0, w0: float = 0.0) -> None:
-        """The loop settled: zero error gives output ``u_hold`` [MU] (integrator preloaded); the
-        derivative's last argument ``e_prev``, or with ``derivative="measurement"`` the reading at
-        the first reference ``w0`` [MU] (``-w0``)."""
-        self.integral = float(u_hold)
-        self.e_prev = -float(w0) if self.cfg.derivative == "measurement" else float(e_prev)
+    def reset(self, u_hold: float, w0: float = 0.0, y0: float | None = None) -> None:
+        """The loop settled, at rest before the first sample with the reading at ``y0`` [MU] (None:
+        at the first reference ``w0`` [MU]): the error stood at ``e0 = w0 − y0`` and the output held
+        ``u_hold`` [MU], so the integrator is ``u_hold − kp·e0`` and the derivative's last argument
+        ``e0`` (``−y0`` with ``derivative="measurement"``): no kick at the first sample. The C
+        replay's settled start (``ctl_start`` in ``c/maglev_replay.c``) is the same."""
+        y0 = float(w0) if y0 is None else float(y0)
+        e0 = float(w0) - y0
+        self.integral = float(u_hold) - self.cfg.kp * e0
+        self.e_prev = -y0 if self.cfg.derivative == "measurement" else e0
         self.d_prev = 0.0
 
     def step(self, w: float, y: float) -> float:

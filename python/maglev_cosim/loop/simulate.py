@@ -162,7 +162,7 @@ def settled_start(p: PlantParams, x_op: float) -> tuple[PlantParams, float]:
 
 def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarray, *,
              controller: Controller | None = None, backend: str = "fast", x_op: float | None = None,
-             fmu: str | Path | None = None) -> LoopResponse:
+             fmu: str | Path | None = None, y_before: float | None = None) -> LoopResponse:
     """The closed loop of plant and controller against reference ``w``.
 
     Parameters
@@ -182,6 +182,11 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
     fmu : path, optional
         The FMU for ``backend="fmu"`` (default: the installed or built ``maglev.fmu``); FMI 2.0 or
         3.0 (``maglev_cosim.fmu_path(fmi_version=3)``), whichever its model description says.
+    y_before : float, optional
+        The reading [MU] at which the loop stood before t = 0, the error ``w[0] − y_before``
+        standing and the controller's output holding the plant (a record cut from a running loop,
+        as the diagnosis replays one). Default: at zero error, so a reference that steps at t = 0
+        acts at the first sample.
 
     Returns
     -------
@@ -209,22 +214,24 @@ def simulate(params: PlantParams | str | Mapping[str, float] | None, w: np.ndarr
         raise ValueError(f"x_op = {x_op * 1e3:g} mm lies outside the stops [{p.x_min * 1e3:g}, {p.x_max * 1e3:g}] mm")
     start, u_hold = settled_start(p, x_op)
     run = {"fast": _run_fast, "fmu": _run_fmu, "reference": _run_reference}[backend]
-    sig = run(start, controller, w, u_hold, fmu)
+    sig = run(start, controller, w, u_hold, fmu, y_before)
     t = np.arange(len(w)) * controller.ts
     return __getattr__("LoopResponse")(t, w, sig["u"], sig["y"], sig["x"], sig["v"], sig["i"], params=p,
                         controller=controller, backend=backend, x_op=x_op)
 
 
-def _run_fast(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
-    return fast_loop.closed_loop(start, w, pid=c, u_hold=u_hold)
+def _run_fast(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu,
+              y_before: float | None) -> dict[str, np.ndarray]:
+    return fast_loop.closed_loop(start, w, pid=c, u_hold=u_hold, y_before=y_before)
 
 
-def _stepwise(plant_outputs, set_input, step, c: Controller, w: np.ndarray, u_hold: float) -> dict[str, np.ndarray]:
+def _stepwise(plant_outputs, set_input, step, c: Controller, w: np.ndarray, u_hold: float,
+              y_before: float | None) -> dict[str, np.ndarray]:
     """The loop with the controller in Python, for the plants stepped from Python."""
     n = len(w)
     out = {k: np.empty(n) for k in ("u", "y", "x", "v", "i")}
     _, x0, v0, i0 = plant_outputs()
-    ctl = start_controller(c, u_hold, (x0, v0, i0), float(w[0]))
+    ctl = start_controller(c, u_hold, (x0, v0, i0), float(w[0]), y_before)
     for k in range(n):
         yk, out["x"][k], out["v"][k], out["i"][k] = plant_outputs()
         out["y"][k] = yk
@@ -235,12 +242,14 @@ def _stepwise(plant_outputs, set_input, step, c: Controller, w: np.ndarray, u_ho
     return out
 
 
-def _run_fmu(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
+def _run_fmu(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu,
+             y_before: float | None) -> dict[str, np.ndarray]:
     with FmuPlant({**start.to_start_values(), "u": u_hold}, fmu=fmu) as plant:
-        return _stepwise(plant.outputs, plant.set_input, plant.step, c, w, u_hold)
+        return _stepwise(plant.outputs, plant.set_input, plant.step, c, w, u_hold, y_before)
 
 
-def _run_reference(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu) -> dict[str, np.ndarray]:
+def _run_reference(start: PlantParams, c: Controller, w: np.ndarray, u_hold: float, fmu,
+                   y_before: float | None) -> dict[str, np.ndarray]:
     plant = ReferencePlant(start)
     plant.reset(u_hold)
 
@@ -248,4 +257,4 @@ def _run_reference(start: PlantParams, c: Controller, w: np.ndarray, u_hold: flo
         o = plant.outputs()
         return o["y"], o["x"], o["v"], o["i"]
 
-    return _stepwise(outputs, plant.set_input, plant.step, c, w, u_hold)
+    return _stepwise(outputs, plant.set_input, plant.step, c, w, u_hold, y_before)

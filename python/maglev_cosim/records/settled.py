@@ -1,0 +1,117 @@
+"""Where a closed-loop record's loop is settled, and the record from there on.
+
+Every replay of a CE152 record starts the loop settled at the first reading (``diagnosis/replay.py``):
+the ball at rest, the current at equilibrium, the integrator holding the equilibrium input. A record
+cut from a running loop need not start so: cut 2 ms after a reference step of the project emulator
+(seed 7701), its first 0.4 s hold the ball flying and the D/A at its limits. The declared PID run
+from a settled start on such a record fits its u at -359 % (the record was refused as one whose
+controller is not the declared one), and with that check skipped the diagnosis of a record without
+any effect took 14.7 s and ended ``explained`` by a 0.08 ms amplifier lag, fitted to the start's
+transient.
+
+A user's record, or another simulator's, may start anywhere. So the diagnosis reads it from the first
+window where the loop is as quiet as in the record's own settled stretches (:func:`settled_from`)
+and says so in a warning (:func:`from_settled`).
+
+The measure of motion is scale-free: each window's standard deviation of ``y`` and of ``u`` (a
+trend, a ringing and the noise alike), against the same figure over the record's reference windows,
+those that start :data:`SETTLE_S` after a reference change and end before the next, with ``u`` within
+its limits. The loop is settled from the first window that is quiet, and stays quiet for
+:data:`QUIET_WINDOWS` windows, with ``u`` within its limits and the reference still. A record without
+enough reference windows (a reference that never rests) is read whole.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .record import Record
+
+#: Window over which the motion is measured [s]: several periods of the loop's ringing (about
+#: 30 Hz) and of mains pickup.
+WINDOW_S = 0.1
+#: A window starts a reference window this long after a reference change [s]: the step response of
+#: the paper's loop has settled within it (Sec. 4).
+SETTLE_S = 0.5
+#: A window is quiet when its standard deviations of y and u are within this factor of the
+#: reference windows' 90th percentiles. (The project emulator's seed 7701, cut 2 ms after a step:
+#: 0.0198, 0.0040 and 0.0012 MU in its first three windows of 50 ms steps, 0.0008 to 0.0010 in its
+#: reference windows.)
+QUIET_FACTOR = 2.5
+#: The loop is settled where this many windows in a row (starts half a window apart) are quiet.
+QUIET_WINDOWS = 4
+#: The readings averaged for the level the loop stood at when the record began (:func:`standing_reading`):
+#: 10 ms at the rig's 1 kHz, within which a settled loop's integrator moves the reading by a few µMU.
+STANDING_SAMPLES = 10
+#: At least this many reference windows for the comparison; fewer, and the record is read whole.
+MIN_REFERENCE_WINDOWS = 3
+#: The search for a settled start ends after this share of the record; a record not settled by then
+#: is read whole (with a warning).
+MAX_SHARE = 0.3
+
+
+def _motion(x: np.ndarray, n: int) -> np.ndarray:
+    """The standard deviation of each window of ``n`` samples (starts 0, n/2, n, ...)."""
+    step = max(1, n // 2)
+    starts = np.arange(0, len(x) - n + 1, step)
+    return np.lib.stride_tricks.sliding_window_view(x, n)[starts].std(axis=1)
+
+
+def settled_from(rec: Record) -> tuple[int, str | None]:
+    """The first sample from which ``rec``'s loop is settled (module docstring), and why the record
+    is read from there: ``(0, None)`` when it starts settled or when it cannot tell (no reference
+    windows); ``(0, text)`` when no window in the first :data:`MAX_SHARE` of the record is quiet."""
+    n = max(20, int(round(WINDOW_S / rec.ts)))
+    if rec.n < 4 * n:
+        return 0, None
+    step = max(1, n // 2)
+    starts = np.arange(0, rec.n - n + 1, step)
+    ty, tu = _motion(rec.y, n), _motion(rec.u, n)
+    changes = np.concatenate([[0], np.nonzero(np.abs(np.diff(rec.w)) > 1e-12)[0] + 1])
+    last_change = changes[np.searchsorted(changes, starts, side="right") - 1]
+    next_change = np.concatenate([changes[1:], [rec.n]])[np.searchsorted(changes, starts, side="right") - 1]
+    inside = np.array([bool(np.all((rec.u[s:s + n] > rec.u_min) & (rec.u[s:s + n] < rec.u_max))) for s in starts])
+    settled = np.round(SETTLE_S / rec.ts)
+    reference = (starts - last_change >= settled) & (last_change > 0) & (starts + n <= next_change) & inside
+    if reference.sum() < MIN_REFERENCE_WINDOWS:
+        return 0, None
+    lim_y = QUIET_FACTOR * float(np.percentile(ty[reference], 90))
+    lim_u = QUIET_FACTOR * float(np.percentile(tu[reference], 90))
+    quiet = (ty <= lim_y) & (tu <= lim_u) & inside & (starts + n <= next_change)
+    # quiet from each window on for QUIET_WINDOWS windows (the last ones of the record: as far as it goes)
+    held = np.array([bool(quiet[j:j + QUIET_WINDOWS].all()) for j in range(len(quiet))])
+    if held[0]:
+        return 0, None
+    within = np.nonzero(held & (starts <= MAX_SHARE * rec.n))[0]
+    if not len(within):
+        return 0, (f"the record does not start settled: its first {WINDOW_S * 1e3:.0f} ms move "
+                   f"(standard deviation of y {ty[0]:.3g} MU, of u {tu[0]:.3g} MU, against {lim_y:.3g} and {lim_u:.3g} in its settled "
+                   f"stretches{'' if inside[0] else ', u at a limit'}), and no window of its first "
+                   f"{MAX_SHARE * 100:.0f} % is quiet: it is read whole, and every replay's settled start is off at first")
+    k = int(starts[within[0]])
+    return k, (f"the record does not start settled: its first {WINDOW_S * 1e3:.0f} ms move (standard deviation of y {ty[0]:.3g} MU, "
+               f"of u {tu[0]:.3g} MU, against {lim_y:.3g} and {lim_u:.3g} in its settled stretches"
+               f"{'' if inside[0] else ', u at a limit'}); the diagnosis reads it from t = {rec.t[k]:.3f} s "
+               f"(sample {k}), where the loop is first as quiet as in those stretches")
+
+
+def standing_reading(rec: Record) -> float:
+    """The reading [MU] at which the loop stood when the record began: the mean of its first
+    :data:`STANDING_SAMPLES` readings (its sensor noise averaged). Every replay of the record starts
+    settled there, with the error ``w[0]`` less it standing (``y_before``,
+    :func:`maglev_cosim.loop.fast_loop.closed_loop`)."""
+    return float(np.mean(rec.y[:STANDING_SAMPLES]))
+
+
+def from_settled(rec: Record) -> tuple[Record, str | None]:
+    """``rec`` from where its loop is settled (:func:`settled_from`), with a warning that says so,
+    and that warning (None: the record unchanged)."""
+    k, text = settled_from(rec)
+    if text is None:
+        return rec, None
+    if k == 0:
+        return replace(rec, warnings=[*rec.warnings, text]), text
+    return replace(rec, t=rec.t[k:], w=rec.w[k:], u=rec.u[k:], y=rec.y[k:],
+                   extra={name: v[k:] for name, v in rec.extra.items()}, warnings=[*rec.warnings, text]), text
