@@ -52,6 +52,33 @@ from maglev_cosim.records.synth import draw_disturbance, synth_record
 #: (``maglev_cosim.records.emulator_ivp.synth_record``, same arguments; docs/diagnosis.md, "The independent emulator").
 SYNTH = synth_record
 
+#: With ``--cut``, each record begins this many samples after its first reference step at or after
+#: :data:`CUT_AFTER_S` [s], re-timed from 0: a logger started while the ball flies
+#: (maglev_cosim/records/settled.py), as records cut from a running loop come.
+CUT_SAMPLES = 2
+CUT_AFTER_S = 1.0
+
+
+def cut_while_flying(synth, path: Path, **kw) -> Path:
+    """``synth``'s record at ``path``, rewritten to begin :data:`CUT_SAMPLES` after its first reference
+    step at or after :data:`CUT_AFTER_S` (its truth file, beside it, is the whole record's)."""
+    out = synth(path, **kw)
+    lines = out.read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    cols = lines[head].split(",")
+    it, iw = cols.index("t"), cols.index("w")
+    rows = [line.split(",") for line in lines[head + 1:]]
+    t = np.array([float(r[it]) for r in rows])
+    w = np.array([float(r[iw]) for r in rows])
+    steps = np.nonzero(np.diff(w) != 0)[0] + 1
+    k = int(steps[t[steps] >= CUT_AFTER_S][0]) + CUT_SAMPLES
+    digits = len(rows[0][it].split(".")[1]) if "." in rows[0][it] else 0
+    for r in rows[k:]:
+        r[it] = f"{float(r[it]) - t[k]:.{digits}f}"
+    out.write_text("\n".join([*lines[:head + 1], *(",".join(r) for r in rows[k:])]) + "\n")
+    return out
+
+
 #: The catalogue cases of the power benchmark: each default entry at its example magnitude (the matrix's,
 #: diagnosis/effects.py), but friction, which the family draws per record (``--friction``).
 POWER_CASES: dict[str, dict] = {name: {name: dict(CATALOGUE[name].example)} for name in DEFAULT_EFFECTS
@@ -397,8 +424,8 @@ def _checks(out: dict, n_null: int, fp: int, hits: int, n_catalogue: int) -> lis
     return [{"criterion": c, "records": n, "measured": m, "target": TARGETS.get(c, "–")} for c, n, m in rows]
 
 
-def family_section(res: dict, emulator: str) -> str:
-    """The benchmark's section of docs/benchmarks.md."""
+def family_section(res: dict, emulator: str, cut: bool = False) -> str:
+    """The benchmark's section of docs/benchmarks.md (``cut``: of records cut while the ball flies, ``--cut``)."""
     body = [f"Records of {EMULATOR_NAMES[emulator]}: {len(res['null'])} without an effect (the disturbance family), "
             "then on the first draws each catalogue effect at the matrix's magnitude, a current limit acting in "
             f"{100 * LIMIT_SHARE[0]:.0f}–{100 * LIMIT_SHARE[1]:.0f} % of the samples and Coulomb friction of "
@@ -412,7 +439,10 @@ def family_section(res: dict, emulator: str) -> str:
                "real delay of its records: a `delay`, or a force or amplifier lag (a lag that short is a delay's twin), "
                f"found alone on a no-effect record within 3σ (or {100 * OWN_DELAY_TOL:.0f} %) of it is counted on its "
                "own row, not as a false positive."
-               if any(r.get("own_delay_s", 0) > 0 for r in res["null"]) else ""), "",
+               if any(r.get("own_delay_s", 0) > 0 for r in res["null"]) else "")
+            + (f" Each record begins {CUT_SAMPLES} samples after its first reference step after {CUT_AFTER_S:g} s, "
+               "re-timed from 0 (`--cut`: a logger started while the ball flies); the diagnosis reads it from where "
+               "its loop is first settled (`records/settled.py`), the truth is the whole record's." if cut else ""), "",
             benchdoc.table(["criterion", "records", "measured", "target"],
                            [[c["criterion"], c["records"], c["measured"], c["target"]] for c in res["checks"]]),
             "", "Records with an effect. *selected*: an effect followed by \"(or X)\" was chosen over X, which the "
@@ -478,6 +508,9 @@ def main() -> None:
                     help="with --family: Coulomb friction on the first F draws (default: as --power)")
     ap.add_argument("--write-docs", action="store_true",
                     help="write the table into its section of docs/benchmarks.md (scripts/benchdoc.py)")
+    ap.add_argument("--cut", action="store_true",
+                    help=f"begin every record {CUT_SAMPLES} samples after its first reference step after {CUT_AFTER_S:g} s "
+                         "(a record cut from a running loop, the ball flying)")
     ap.add_argument("--also", action="append", default=[], metavar="EFFECT",
                     help="with --family: an opt-in catalogue effect tried beside the default ones, to measure "
                          "what putting it in the default catalogue would do (repeatable)")
@@ -496,6 +529,8 @@ def main() -> None:
             ap.error(str(e))
         SYNTH, supported = partial(emulator_ivp.synth_record, settings=settings), set(emulator_ivp.EFFECTS)
         POWER_CASES = {k: v for k, v in POWER_CASES.items() if set(v) <= supported}
+    if a.cut:
+        SYNTH = partial(cut_while_flying, SYNTH)
     if a.family:
         with tempfile.TemporaryDirectory() as tmp:
             n_extra = [min(a.power if v is None else v, a.family) for v in (a.limits, a.friction)]
@@ -506,7 +541,9 @@ def main() -> None:
             title = f"Acceptance benchmark: {'independent emulator' if a.emulator == 'ivp' else 'project emulator'}"
             if a.setting:     # a run with the independent emulator's own settings has a section of its own
                 title += " (" + ", ".join(a.setting) + ")"
-            benchdoc.write_section(title, family_section(res, a.emulator), time.perf_counter() - t_start)
+            if a.cut:
+                title += f" (records cut {CUT_SAMPLES} samples after a reference step)"
+            benchdoc.write_section(title, family_section(res, a.emulator, a.cut), time.perf_counter() - t_start)
             print(f"wrote the section '{title}' of {benchdoc.DOC}")
         return
     rows = []

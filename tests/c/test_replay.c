@@ -199,6 +199,32 @@ static void test_derivative_of_the_reading(void) {
     CHECK(maglev_pid_check(&pm, msg, sizeof msg) == -1 && strstr(msg, "d_on_y"), "d_on_y 2 refused: %s", msg);
 }
 
+/* The start from a reading (from_reading): a PID that stood at the reading y_before with the error
+ * w[0] - y_before holds u_hold at the first sample while the reading stays, and moves by the integrator
+ * alone; a closed loop started there rests where it stood at first. from_reading other than 0 or 1, or
+ * a y_before that is not finite, is refused naming them. */
+static void test_start_from_a_reading(void) {
+    char msg[256];
+    MaglevPid pid = {1e-3, 2.0, 2.97, 0.01, -10.0, 10.0, 0.0, 0, 0, 0, 1, 0};
+    MaglevController c = {.kind = 0, .pid = pid, .from_reading = 1, .y_before = 0.388};
+    enum { M = 4 };
+    const double w[M] = {0.4, 0.4, 0.4, 0.4}, y[M] = {0.388, 0.388, 0.388, 0.388};
+    double u[M];
+    for (int d = 0; d < 2; d++) {
+        c.pid.d_on_y = d;
+        CHECK(maglev_replay_control(&c, w, y, NULL, M, 0.3, NULL, u, msg, sizeof msg) == 0, "%s", msg);
+        for (int k = 0; k < M; k++)
+            CHECK(fabs(u[k] - (0.3 + 2.97e-3 * 0.012 * (k + 1))) < 1e-12, "d_on_y %d, sample %d: %.15g", d, k, u[k]);
+    }
+    c.from_reading = 2;
+    CHECK(maglev_replay_control(&c, w, y, NULL, M, 0.3, NULL, u, msg, sizeof msg) == -1 && strstr(msg, "from_reading"),
+          "from_reading 2 refused: %s", msg);
+    c.from_reading = 1;
+    c.y_before = NAN;
+    CHECK(maglev_replay_control(&c, w, y, NULL, M, 0.3, NULL, u, msg, sizeof msg) == -1 && strstr(msg, "y_before"),
+          "y_before NaN refused: %s", msg);
+}
+
 int main(void) {
     double p[MAGLEV_NPARAMS];
     MaglevPoint pt;
@@ -349,6 +375,7 @@ int main(void) {
 
     test_other_controllers();
     test_derivative_of_the_reading();
+    test_start_from_a_reading();
     test_coloured_sensor_noise();
     printf("%d checks, %d failures\n", checks, failures);
     return failures ? 1 : 0;
