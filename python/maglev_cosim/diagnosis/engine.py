@@ -136,8 +136,8 @@ def _ce152(r: Recording, *, effects, out, progress, workers, fmu, start, json_na
     with threadpool_limits(limits=1), ThreadPoolExecutor(max_workers=1) as side:
         boxes: list[Future] = []
         d = pipeline.run(rec, effects=names, workers=workers, progress=progress, start=start,
-                         searched=lambda: boxes.append(side.submit(black_box_predictions, rec)))
-        rec = d.diagnosed   # with its PID's form as the record showed it (controller_form)
+                         searched=lambda read: boxes.append(side.submit(black_box_predictions, read)))
+        rec = d.diagnosed   # from where its loop is settled, with its PID's form as it showed it (controller_form)
         cmp = None
         if d.verdict is not None:
             say("comparing the final model's predictions with the black box and the naive predictors (5, 20, 50 ms)")

@@ -1461,7 +1461,7 @@ def summarise(rec: Record, after: dict[str, float], residual_after: dict, noise:
 
 def run(rec: Record, *, effects: Sequence[str] | None = None, workers: int | None = None,
         progress: Say | None = None, start: Mapping[str, float] | None = None,
-        searched: Callable[[], None] | None = None) -> Diagnosis:
+        searched: Callable[[Record], None] | None = None) -> Diagnosis:
     """Runs the stages on a CE152 record (:func:`maglev_cosim.diagnosis.diagnose` is the entry point).
 
     Parameters
@@ -1479,13 +1479,14 @@ def run(rec: Record, *, effects: Sequence[str] | None = None, workers: int | Non
         Starting values of the calibrated parameters (default: the Eq. 14 fit of the record's
         settled segments where it has them, else the Section 3 values).
     searched : callable, optional
-        Called once the last search has ended: no worker process is forked after it, so that the
-        caller may start threads of its own there (the black boxes of :mod:`.compare`).
+        Called once the last search has ended, with the record as the diagnosis reads it
+        (:attr:`Diagnosis.diagnosed`): no worker process is forked after it, so that the caller may
+        start threads of its own there (the black boxes of :mod:`.compare`).
     """
     # One BLAS thread per process: the candidate fits already keep every core busy, and BLAS
     # threads inside scipy's least squares would only compete with them for the cores.
     with threadpool_limits(limits=1):
-        return _diagnose(rec, effects, workers, progress, start, searched or (lambda: None))
+        return _diagnose(rec, effects, workers, progress, start, searched or (lambda r: None))
 
 
 def _unless_on_bounds(prob: Problem, found: Search, final_values: dict, unc: dict, effects: Sequence[str],
@@ -1504,7 +1505,7 @@ def _unless_on_bounds(prob: Problem, found: Search, final_values: dict, unc: dic
 
 
 def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, progress: Say | None,
-              start: Mapping[str, float] | None, searched: Callable[[], None]) -> Diagnosis:
+              start: Mapping[str, float] | None, searched: Callable[[Record], None]) -> Diagnosis:
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
     effects = list(DEFAULT_EFFECTS) if effects is None else list(dict.fromkeys(effects))   # each tried once
@@ -1544,7 +1545,7 @@ def _diagnose(rec: Record, effects: Sequence[str] | None, workers: int | None, p
         final_values, unc = refit(cal.prob, found.values, found.selected, say)
         found, final_values, unc = _unless_on_bounds(cal.prob, found, final_values, unc, effects, fit_mask, say)
         sim_after = cal.prob.free_run(final_values)
-    searched()
+    searched(rec)
     before, after = rms(rec, cal.sim), rms(rec, sim_after)
     residual_after = analyse_residual(rec, sim_after)
     noise = noise_floor(rec)

@@ -14,11 +14,12 @@ window where the loop is as quiet as in the record's own settled stretches (:fun
 and says so in a warning (:func:`from_settled`).
 
 The measure of motion is scale-free: each window's standard deviation of ``y`` and of ``u`` (a
-trend, a ringing and the noise alike), against the same figure over the record's reference windows,
-those that start :data:`SETTLE_S` after a reference change and end before the next, with ``u`` within
-its limits. The loop is settled from the first window that is quiet, and stays quiet for
-:data:`QUIET_WINDOWS` windows, with ``u`` within its limits and the reference still. A record without
-enough reference windows (a reference that never rests) is read whole.
+trend, a ringing and the noise alike), against the same figure over the record's reference windows:
+the last window of each rest of the reference that starts :data:`SETTLE_S` after its change, with
+``u`` within its limits, where the loop is most settled. The loop is settled from the first window
+that is quiet, and stays quiet for :data:`QUIET_WINDOWS` windows, with ``u`` within its limits and
+the reference still. A record without enough reference windows (a reference that never rests) is
+read whole.
 """
 
 from __future__ import annotations
@@ -74,7 +75,10 @@ def settled_from(rec: Record) -> tuple[int, str | None]:
     next_change = np.concatenate([changes[1:], [rec.n]])[np.searchsorted(changes, starts, side="right") - 1]
     inside = np.array([bool(np.all((rec.u[s:s + n] > rec.u_min) & (rec.u[s:s + n] < rec.u_max))) for s in starts])
     settled = np.round(SETTLE_S / rec.ts)
-    reference = (starts - last_change >= settled) & (last_change > 0) & (starts + n <= next_change) & inside
+    # each rest of the reference's last window, where its loop is most settled (a lightly damped loop
+    # still rings 0.5 s after a step: the project emulator's 3 ms amplifier lag, seed 7701)
+    last = (starts + n <= next_change) & (starts + n + step > next_change)
+    reference = (starts - last_change >= settled) & (last_change > 0) & last & inside
     if reference.sum() < MIN_REFERENCE_WINDOWS:
         return 0, None
     lim_y = QUIET_FACTOR * float(np.percentile(ty[reference], 90))
