@@ -52,6 +52,13 @@ def test_a_record_cut_while_the_ball_flies_is_read_from_where_its_loop_is_quiet(
     assert settled.settled_from(trimmed) == (0, None)          # read once, it starts settled
 
 
+@pytest.mark.parametrize("before_step", [5, 50, 120])
+def test_a_record_at_rest_that_steps_soon_after_it_begins_is_read_whole(record, before_step):
+    """Cut while at rest, 5 to 120 ms before a reference step: the step's response is no motion of
+    the start, which is read as settled."""
+    assert settled.settled_from(_cut(record, after_step=-before_step)) == (0, None)
+
+
 def test_the_cut_record_passes_the_controller_check_once_read_from_its_settled_start(record):
     """Started settled at zero error, the declared PID ran on the cut record misses its u by far
     (the check refused it as another controller's); read from where it settles, it fits."""

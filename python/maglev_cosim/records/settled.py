@@ -46,6 +46,8 @@ QUIET_WINDOWS = 4
 #: The readings averaged for the level the loop stood at when the record began (:func:`standing_reading`):
 #: 10 ms at the rig's 1 kHz, within which a settled loop's integrator moves the reading by a few µMU.
 STANDING_SAMPLES = 10
+#: A window cut at the first reference step is judged only with at least this many samples.
+MIN_PART = 20
 #: At least this many reference windows for the comparison; fewer, and the record is read whole.
 MIN_REFERENCE_WINDOWS = 3
 #: The search for a settled start ends after this share of the record; a record not settled by then
@@ -58,6 +60,20 @@ def _motion(x: np.ndarray, n: int) -> np.ndarray:
     step = max(1, n // 2)
     starts = np.arange(0, len(x) - n + 1, step)
     return np.lib.stride_tricks.sliding_window_view(x, n)[starts].std(axis=1)
+
+
+def _quiet_until_first_step(rec: Record, n: int, step: int, first: int, lim_y: float, lim_u: float) -> bool:
+    """Whether the record's start is quiet up to its first reference step at sample ``first``, when
+    that step comes within the windows :func:`settled_from` asks to be quiet (a record that begins
+    settled and steps 50 ms later starts settled: the step's response is no motion of the start).
+    Each window is cut at the step; one of fewer than :data:`MIN_PART` samples is not judged."""
+    if first >= (QUIET_WINDOWS - 1) * step + n:
+        return False            # no step within them: the windows themselves said it
+    parts = [(a, min(a + n, first)) for a in range(0, QUIET_WINDOWS * step, step) if min(a + n, first) - a >= MIN_PART]
+    if not parts:
+        return True             # the reference steps at once: the start is read as settled at the old level
+    return all(np.std(rec.y[a:b]) <= lim_y and np.std(rec.u[a:b]) <= lim_u
+               and bool(np.all((rec.u[a:b] > rec.u_min) & (rec.u[a:b] < rec.u_max))) for a, b in parts)
 
 
 def settled_from(rec: Record) -> tuple[int, str | None]:
@@ -86,7 +102,7 @@ def settled_from(rec: Record) -> tuple[int, str | None]:
     quiet = (ty <= lim_y) & (tu <= lim_u) & inside & (starts + n <= next_change)
     # quiet from each window on for QUIET_WINDOWS windows (the last ones of the record: as far as it goes)
     held = np.array([bool(quiet[j:j + QUIET_WINDOWS].all()) for j in range(len(quiet))])
-    if held[0]:
+    if held[0] or _quiet_until_first_step(rec, n, step, int(changes[1]) if len(changes) > 1 else rec.n, lim_y, lim_u):
         return 0, None
     within = np.nonzero(held & (starts <= MAX_SHARE * rec.n))[0]
     if not len(within):
