@@ -1,8 +1,8 @@
 """Where a closed-loop record's loop is settled, and the record from there on.
 
-Every replay of a CE152 record starts the loop settled at the first reading (``diagnosis/replay.py``):
-the ball at rest, the current at equilibrium, the integrator holding the equilibrium input. A record
-cut from a running loop need not start so: cut 2 ms after a reference step of the project emulator
+Every replay of a CE152 record starts the loop settled where the record began (``diagnosis/replay.py``,
+:func:`standing_reading`): the ball at rest, the current at equilibrium, the controller's output
+holding it. A record cut from a running loop need not start so: cut 2 ms after a reference step of the project emulator
 (seed 7701), its first 0.4 s hold the ball flying and the D/A at its limits. The declared PID run
 from a settled start on such a record fits its u at -359 % (the record was refused as one whose
 controller is not the declared one), and with that check skipped the diagnosis of a record without
@@ -131,7 +131,7 @@ def from_settled(rec: Record) -> tuple[Record, str | None]:
     """``rec`` from where its loop is settled (:func:`settled_from`), with a warning that says so,
     and that warning (None: the record unchanged)."""
     k, text = settled_from(rec)
-    if text is None:
+    if text is None or (k == 0 and text in rec.warnings):     # read before: said once
         return rec, None
     if k == 0:
         return replace(rec, warnings=[*rec.warnings, text]), text
