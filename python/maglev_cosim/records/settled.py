@@ -45,9 +45,12 @@ SETTLE_S = 0.5
 QUIET_FACTOR = 1.5
 #: The loop is settled where this many windows in a row (starts half a window apart) are quiet.
 QUIET_WINDOWS = 4
-#: The readings averaged for the level the loop stood at when the record began (:func:`standing_reading`):
-#: 10 ms at the rig's 1 kHz, within which a settled loop's integrator moves the reading by a few µMU.
-STANDING_SAMPLES = 10
+#: The time over which the readings are averaged for the level the loop stood at when the record
+#: began [s] (:func:`standing_reading`): whole periods of 50 and 60 Hz mains pickup, which a shorter
+#: mean does not cancel (10 ms, half a period of 50 Hz, put the project emulator's record with a
+#: 50 Hz pickup of 0.008 V, seed 5, 0.65 mMU off its reference and the pickup's amplitude 5.6 % low),
+#: and short against a creeping integrator (0.01 MU/s after a step: 0.5 mMU in 50 ms).
+STANDING_S = 0.1
 #: A window cut at the first reference step is judged only with at least this many samples.
 MIN_PART = 20
 #: At least this many reference windows for the comparison; fewer, and the record is read whole.
@@ -120,11 +123,11 @@ def settled_from(rec: Record) -> tuple[int, str | None]:
 
 
 def standing_reading(rec: Record) -> float:
-    """The reading [MU] at which the loop stood when the record began: the mean of its first
-    :data:`STANDING_SAMPLES` readings (its sensor noise averaged). Every replay of the record starts
+    """The reading [MU] at which the loop stood when the record began: the mean of its readings over
+    the first :data:`STANDING_S` (its sensor noise and mains pickup averaged). Every replay of the record starts
     settled there, with the error ``w[0]`` less it standing (``y_before``,
     :func:`maglev_cosim.loop.fast_loop.closed_loop`)."""
-    return float(np.mean(rec.y[:STANDING_SAMPLES]))
+    return float(np.mean(rec.y[:max(1, int(round(STANDING_S / rec.ts)))]))
 
 
 def from_settled(rec: Record) -> tuple[Record, str | None]:
