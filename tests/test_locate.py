@@ -62,20 +62,18 @@ def test_injection_enters_where_it_says(tmp_path):
 
 
 @pytest.mark.parametrize("extra", [{}, {"T_a": 2e-3, "T_d": 1.5e-3}, {"i_max": 0.8, "k_x2": 300.0}])
-def test_a_replay_is_the_loop_simulate_runs_settled_at_the_standing_reading(tmp_path, extra):
+def test_a_replay_is_the_loop_simulate_runs_settled_at_the_first_reading(tmp_path, extra):
     """The replays of the fits work on parameter vectors, past the parameter objects: the same loop
     as :func:`maglev_cosim.loop.simulate.simulate` from the same settled start, to the last bit."""
     from maglev_cosim.plant import fast, formulas
     from maglev_cosim.loop.simulate import simulate
     from maglev_cosim.plant.params import as_params
     from maglev_cosim.diagnosis.replay import record_controller
-    from maglev_cosim.records.settled import standing_reading
 
     rec = read_record(synth_record(tmp_path / "r.csv", effects={"delay": {"T_d": 2e-3}}, seed=4, duration=2.0))
     values = {**baseline_params(), **extra}
     p = as_params(values)
-    y_b = standing_reading(rec)
-    ref = simulate(p, rec.w, controller=record_controller(rec), x_op=formulas.position(p, y_b), y_before=y_b).signals()
+    ref = simulate(p, rec.w, controller=record_controller(rec), x_op=formulas.position(p, float(rec.y[0]))).signals()
     for given in (values, fast.param_vector(values)):
         got = replay(rec, given)
         assert set(got) == set(ref)

@@ -74,15 +74,16 @@ def test_a_reference_that_never_rests_cannot_tell_and_the_record_is_read_whole(t
 
 
 def test_the_replay_starts_where_the_record_began_at_rest(record):
-    """Cut 0.2 s after a step, the loop still creeps towards its reference (its integrator winds):
+    """Read from where it settles after the cut, the loop still creeps towards its reference (its integrator winds):
     the replay's ball rests where the record began, its output holding it, rather than jumping
     towards the reference at once (kp times the standing error, and a derivative kick)."""
-    cut = _cut(record, after_step=200)
-    values = baseline_params()
-    y_b = settled.standing_reading(cut)
-    assert abs(cut.w[0] - y_b) > 0.003                  # an error stands
-    r = replay(cut, values)
+    cut, _ = settled.from_settled(_cut(record))
+    y_b = cut.y_before
+    assert y_b == settled.standing_reading(cut.y, cut.ts) and abs(cut.w[0] - y_b) > 0.003     # an error stands
+    r = replay(cut, baseline_params())
     assert abs(r["y"][20] - y_b) < 0.2 * abs(cut.w[0] - y_b)
+    # a record read from its first sample starts at zero error, as before
+    assert settled.from_settled(record)[0].y_before is None
 
 
 @pytest.mark.slow

@@ -43,7 +43,6 @@ from ..loop import fast_loop
 from ..plant import fast
 from ..records.measured import true_runs
 from ..records.record import Record
-from ..records.settled import standing_reading
 from . import blackbox as bb
 from .acceptance import fit_blocks
 from .problem import on_fit_steps
@@ -205,7 +204,7 @@ def _compare(rec: Record, params: Mapping[str, float], noise: NoiseModel,
     hs = [max(1, int(round(h / rec.ts))) for h in horizons_s]
     kw = dict(q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizons=hs, stride=STRIDE,
               f_sensor=noise.f_sensor, r_coloured=noise.r_coloured)
-    closed_kw = dict(kw, y_before=standing_reading(rec))
+    closed_kw = dict(kw, y_before=rec.y_before)
     # both predictions run in C, which cffi calls without the GIL: on two threads, while this one
     # fits the black boxes (their results are read where the skills are computed)
     with ThreadPoolExecutor(max_workers=2) as pool:

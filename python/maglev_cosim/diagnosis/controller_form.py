@@ -33,7 +33,7 @@ from scipy.optimize import minimize_scalar
 from ..loop import fast_loop
 from ..loop.pid import DERIVATIVE, PID
 from ..records.record import Record
-from ..records.settled import from_settled, standing_reading
+from ..records.settled import from_settled
 from .replay import record_controller
 from .residual import check_controller
 
@@ -91,7 +91,7 @@ def misfit(rec: Record, pid: PID) -> tuple[float, int]:
     u_hold = float(rec.u[0])
     d = ok = None
     for _ in range(2):
-        u_pid = fast_loop.control(pid, rec.w, rec.y, None, u_hold, y_before=standing_reading(rec))
+        u_pid = fast_loop.control(pid, rec.w, rec.y, None, u_hold, y_before=rec.y_before)
         ok = (u_pid > pid.u_min) & (u_pid < pid.u_max) & (rec.u > pid.u_min) & (rec.u < pid.u_max)
         ok[:SKIP] = False
         if not ok.any():

@@ -1,10 +1,12 @@
 """Replaying a record in closed loop on the C plant (cffi fast path).
 
 The record's controller and reference drive the model (:func:`maglev_cosim.loop.simulate.simulate`); the
-loop starts settled where the record began (:func:`~maglev_cosim.records.settled.standing_reading`,
-the mean of its first readings, ``y_b``): the ball at rest where the model's sensor reads ``y_b``,
-the current at equilibrium there, and the controller's output holding the equilibrium input with the
-error ``w[0] − y_b`` standing (a record cut from a running loop whose integrator still creeps).
+loop starts settled at the first reading ``y[0]``: the ball at rest where the model's sensor
+reads ``y[0]``, the current at equilibrium there, ``e[−1] = 0`` and the integrator holding the
+equilibrium input. A record read from a settled point after a start that moved
+(:func:`~maglev_cosim.records.settled.from_settled`) starts where it stood, ``Record.y_before``: the
+ball at rest where the sensor reads it, and the controller's output holding the equilibrium input
+with the error ``w[0] − y_before`` standing (its integrator may still creep towards the reference).
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from ..loop.pid import PID
 from ..plant import fast, formulas
 from ..plant.params import as_params, get_params
 from ..records.record import Record
-from ..records.settled import standing_reading
 from .acceptance import accept_nll, fit_blocks
 from .memo import Memo
 
@@ -41,12 +42,12 @@ def record_controller(rec: Record) -> Controller:
 
 def _settled_at_first_reading(rec: Record, params: Mapping[str, float] | np.ndarray) -> tuple[np.ndarray, float]:
     """``params`` checked as the FMU would, as a parameter vector with the start state where every
-    replay of a record starts: at rest where the model reads the record's standing reading
-    (:func:`~maglev_cosim.records.settled.standing_reading`), the current at equilibrium
+    replay of a record starts: at rest where the model reads ``y[0]`` (``rec.y_before`` where the
+    record has one, :func:`~maglev_cosim.records.settled.from_settled`), the current at equilibrium
     there (:func:`~maglev_cosim.loop.simulate.settled_start`); and the hold input [MU]. It works on the
     vector: a fit replays thousands of times, and building parameter objects cost a third of each."""
     pv = fast.param_vector(params)
-    return settled_start_vector(pv, formulas.position(pv, standing_reading(rec)))
+    return settled_start_vector(pv, formulas.position(pv, float(rec.y[0]) if rec.y_before is None else rec.y_before))
 
 
 def replay(rec: Record, params: Mapping[str, float] | np.ndarray, *, w: np.ndarray | None = None) -> dict[str, np.ndarray]:
@@ -69,7 +70,7 @@ def replay_injected(rec: Record, params: Mapping[str, float] | np.ndarray, *, du
     start as :func:`replay`; with no injection the same result."""
     start, u_hold = _settled_at_first_reading(rec, params)
     return fast_loop.closed_loop(start, rec.w if w is None else w, pid=record_controller(rec), u_hold=u_hold,
-                                 du=du, dF=dF, dy=dy, y_step=y_step, u_step=u_step, y_before=standing_reading(rec))
+                                 du=du, dF=dF, dy=dy, y_step=y_step, u_step=u_step, y_before=rec.y_before)
 
 # ----------------------------------------------------------------------------- prediction-error replay
 
@@ -155,7 +156,7 @@ def predict(rec: Record, params: Mapping[str, float], noise: NoiseModel, *, hori
     return fast_loop.predict(start, record_controller(rec), rec.w, rec.y, rec.u, u_hold,
                         q_force=noise.q_force, f_force=noise.f_force, r_sensor=noise.r_sensor, horizon=horizon,
                         stride=stride, f_sensor=noise.f_sensor, r_coloured=noise.r_coloured,
-                        y_before=standing_reading(rec))
+                        y_before=rec.y_before)
 
 
 def _usable(out: Mapping[str, np.ndarray], mask: np.ndarray | None, skip: int) -> tuple[np.ndarray, np.ndarray]:

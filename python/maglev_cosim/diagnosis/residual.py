@@ -13,7 +13,6 @@ from ..loop.controllers import needs_current
 from ..plant import formulas
 from ..plant.params import get_params
 from ..records.record import Record, RecordError
-from ..records.settled import standing_reading
 from .metrics import nrmse_fit
 from .replay import record_controller
 
@@ -167,7 +166,7 @@ def check_controller(rec: Record) -> float | None:
     ctl = record_controller(rec)
     if needs_current(ctl):
         return None
-    fit = nrmse_fit(rec.u, fast_loop.control(ctl, rec.w, rec.y, None, float(rec.u[0]), y_before=standing_reading(rec)))
+    fit = nrmse_fit(rec.u, fast_loop.control(ctl, rec.w, rec.y, None, float(rec.u[0]), y_before=rec.y_before))
     if fit >= CONTROLLER_FIT_MIN:
         return fit
     swapped = nrmse_fit(rec.y, fast_loop.control(ctl, rec.w, rec.u, None, float(rec.y[0])))

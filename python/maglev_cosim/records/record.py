@@ -97,6 +97,11 @@ class Record:
     #: errors found after reading that name the column (0 and empty when not read from a CSV file).
     header_line: int = 0
     header_columns: dict[str, int] = field(default_factory=dict)
+    #: The reading [MU] at which the loop stood before the record began, its error ``w[0] − y_before``
+    #: standing: set where the record was read from a settled point after a start that moved
+    #: (:func:`maglev_cosim.records.settled.from_settled`), and every replay then starts there. None:
+    #: the loop started settled at zero error where ``y[0]`` reads.
+    y_before: float | None = None
 
     @property
     def n(self) -> int:

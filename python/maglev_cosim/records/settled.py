@@ -122,12 +122,12 @@ def settled_from(rec: Record) -> tuple[int, str | None]:
                f"(sample {k}), where the loop is first as quiet as in those stretches")
 
 
-def standing_reading(rec: Record) -> float:
-    """The reading [MU] at which the loop stood when the record began: the mean of its readings over
-    the first :data:`STANDING_S` (its sensor noise and mains pickup averaged). Every replay of the record starts
-    settled there, with the error ``w[0]`` less it standing (``y_before``,
-    :func:`maglev_cosim.loop.fast_loop.closed_loop`)."""
-    return float(np.mean(rec.y[:max(1, int(round(STANDING_S / rec.ts)))]))
+def standing_reading(y: np.ndarray, ts: float) -> float:
+    """The reading [MU] at which the loop stood where readings ``y`` [MU] (``ts`` [s] apart) begin: their
+    mean over the first :data:`STANDING_S` (sensor noise and mains pickup averaged). A record read from
+    a settled point (:func:`from_settled`) keeps it as ``Record.y_before``: every replay starts there,
+    with the error ``w[0]`` less it standing (:func:`maglev_cosim.loop.fast_loop.closed_loop`)."""
+    return float(np.mean(y[:max(1, int(round(STANDING_S / ts)))]))
 
 
 def from_settled(rec: Record) -> tuple[Record, str | None]:
@@ -138,5 +138,5 @@ def from_settled(rec: Record) -> tuple[Record, str | None]:
         return rec, None
     if k == 0:
         return replace(rec, warnings=[*rec.warnings, text]), text
-    return replace(rec, t=rec.t[k:], w=rec.w[k:], u=rec.u[k:], y=rec.y[k:],
+    return replace(rec, t=rec.t[k:], w=rec.w[k:], u=rec.u[k:], y=rec.y[k:], y_before=standing_reading(rec.y[k:], rec.ts),
                    extra={name: v[k:] for name, v in rec.extra.items()}, warnings=[*rec.warnings, text]), text
