@@ -91,7 +91,7 @@ def test_the_replay_starts_where_the_record_began_at_rest(record):
 def test_a_record_cut_from_a_running_loop_is_diagnosed_as_the_whole_one(tmp_path, effects, expected):
     """Project emulator, seed 7701, without effects (before, the check refused the cut record, and
     with the check skipped the start's transient made a 0.08 ms amplifier lag) and with a 3 ms
-    amplifier lag (found at 3.04 ms whole, 2.75 ms cut), each cut 2 ms after its first step after 1 s."""
+    amplifier lag (found at 3.04 ms whole, 2.84 ms cut), each cut 2 ms after its first step after 1 s."""
     seed = 7701
     rec = read_record(synth_record(tmp_path / "r.csv", seed=seed, disturbance=draw_disturbance(seed), effects=effects),
                       plausibility="warn")
