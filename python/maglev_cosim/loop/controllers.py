@@ -182,9 +182,11 @@ class StateFeedback:
         """A copy with some settings changed."""
         return replace(self, **changes)
 
-    def start(self, u_hold: float, x0: tuple[float, float, float] = (0.0, 0.0, 0.0), w0: float = 0.0) -> RunningStateFeedback:
+    def start(self, u_hold: float, x0: tuple[float, float, float] = (0.0, 0.0, 0.0), w0: float = 0.0,
+              y0: float | None = None) -> RunningStateFeedback:
         """Running, settled: the observer at the plant's state ``x0`` [m, m/s, A], the integral where
-        ``u = u_hold`` [MU] for reference ``w0`` [MU]."""
+        ``u = u_hold`` [MU] for reference ``w0`` [MU]. ``y0``, the first reading, changes nothing: the
+        plant's state holds it (C ``ctl_start`` reads no ``from_reading`` for kind 2)."""
         return RunningStateFeedback(self, u_hold, x0, w0)
 
     def c_settings(self) -> dict[str, Any]:
@@ -233,9 +235,7 @@ def start(controller: Controller, u_hold: float, x0=(0.0, 0.0, 0.0), w0: float =
     reading ``y0`` [MU] (None: ``w0``): ``.step(w, y, i)`` gives ``u`` [MU]."""
     if isinstance(controller, PID):
         return _RunningPID(controller, u_hold, w0, y0)
-    if isinstance(controller, Cascade):
-        return controller.start(u_hold, x0, w0, y0)
-    return controller.start(u_hold, x0, w0)
+    return controller.start(u_hold, x0, w0, y0)
 
 
 class _RunningPID(DiscretePID):

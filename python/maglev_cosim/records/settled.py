@@ -60,11 +60,9 @@ MIN_REFERENCE_WINDOWS = 3
 MAX_SHARE = 0.3
 
 
-def _motion(x: np.ndarray, n: int) -> np.ndarray:
-    """The standard deviation of each window of ``n`` samples (starts 0, n/2, n, ...)."""
-    step = max(1, n // 2)
-    starts = np.arange(0, len(x) - n + 1, step)
-    return np.lib.stride_tricks.sliding_window_view(x, n)[starts].std(axis=1)
+def _windows(x: np.ndarray, starts: np.ndarray, n: int) -> np.ndarray:
+    """The windows of ``n`` samples of ``x`` that begin at ``starts``, one per row."""
+    return np.lib.stride_tricks.sliding_window_view(x, n)[starts]
 
 
 def _quiet_until_first_step(rec: Record, n: int, step: int, first: int, lim_y: float, lim_u: float) -> bool:
@@ -90,11 +88,13 @@ def settled_from(rec: Record) -> tuple[int, str | None]:
         return 0, None
     step = max(1, n // 2)
     starts = np.arange(0, rec.n - n + 1, step)
-    ty, tu = _motion(rec.y, n), _motion(rec.u, n)
+    ty, tu = _windows(rec.y, starts, n).std(axis=1), _windows(rec.u, starts, n).std(axis=1)
     changes = np.concatenate([[0], np.nonzero(np.abs(np.diff(rec.w)) > 1e-12)[0] + 1])
-    last_change = changes[np.searchsorted(changes, starts, side="right") - 1]
-    next_change = np.concatenate([changes[1:], [rec.n]])[np.searchsorted(changes, starts, side="right") - 1]
-    inside = np.array([bool(np.all((rec.u[s:s + n] > rec.u_min) & (rec.u[s:s + n] < rec.u_max))) for s in starts])
+    rest = np.searchsorted(changes, starts, side="right") - 1       # the rest of the reference each window begins in
+    last_change = changes[rest]
+    next_change = np.concatenate([changes[1:], [rec.n]])[rest]
+    u_win = _windows(rec.u, starts, n)
+    inside = np.all((u_win > rec.u_min) & (u_win < rec.u_max), axis=1)
     settled = np.round(SETTLE_S / rec.ts)
     # each rest of the reference's last window, where its loop is most settled (a lightly damped loop
     # still rings 0.5 s after a step: the project emulator's 3 ms amplifier lag, seed 7701)
