@@ -32,8 +32,8 @@ from .effects import BASELINE, CATALOGUE, DEFAULT_EFFECTS, Effect, twin_warnings
 from .identify import equilibrium_points, least_squares_eq14
 from .jacobian import gauss_newton_step, parameter_columns
 from .metrics import chi2_quantile, nrmse_fit
-from .problem import (FIT_TOL, Fit, Parameterization, Problem, cost_on, fit, on_fit_steps, one_thread, residuals,
-                      stacked, thread_map)
+from .problem import (FIT_TOL, Fit, Parameterization, Problem, cost_on, fit, on_fit_steps, one_thread, remember,
+                      residuals, stacked, thread_map)
 from .replay import HORIZON_S, baseline_params, estimate_noise, predict
 from .controller_form import identified
 from .residual import analyse_residual, effective_samples, noise_floor
@@ -322,7 +322,7 @@ def fit_candidate(prob: Problem, current: dict[str, float], effect_name: str, ma
     # same (the same iterations): a screen that converged is the fit to convergence
     return {"effect": effect_name, "values": values, "fit_cost": f.cost, "nfev": nfev, "retried": retried,
             "converged": converged, "cpu_s": time.process_time() - t0, "joint": _joint(eff, current, values),
-            "prepared": {"starts": starts, "prefit": prefits}}
+            "prepared": {"starts": starts, "prefit": prefits}, "simulated": prob.simulated(values)}
 
 
 #: Whether the candidates whose fit to convergence reaches :data:`SCREEN_SHARE` of their threshold
@@ -816,15 +816,38 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
     cpu: dict[str, float] = {}       # each candidate's CPU time in the last round
     last_fits: dict[str, tuple[dict, dict]] = {}   # each candidate's latest fit to convergence (entry, values)
     ctx = get_context("fork") if sys.platform.startswith("linux") else get_context()
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=one_thread) if workers > 1 else None
+    # One pool of one process per worker, so that a candidate's later fits go where its screen ran:
+    # a fit to convergence, and a refit to the model's tolerance, retrace the path of the fit before
+    # them, whose replays that process keeps (problem.SIMULATED_KEPT). Each process starts here, before
+    # any thread of this search does.
+    pools = [ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=one_thread)
+             for _ in range(workers)] if workers > 1 else []
+    for p in pools:
+        p.submit(int).result()
+    on_pool: dict[Future, int] = {}
+    home: dict[str, int] = {}         # each candidate's process: where its last fit ran
 
     def run(fn, args) -> Future:
-        """``fn(args)`` on the pool, or at once here (one worker)."""
-        if pool:
-            return pool.submit(fn, args)
+        """``fn(args)`` on a worker (the candidate's own where it is among the least busy), or at
+        once here (one worker)."""
+        if pools:
+            busy = [sum(1 for f, j in on_pool.items() if j == k and not f.done()) for k in range(len(pools))]
+            k = home.get(args[2], -1)
+            if k < 0 or busy[k] > min(busy):
+                k = busy.index(min(busy))
+            fut = pools[k].submit(fn, args)
+            on_pool[fut] = home[args[2]] = k
+            return fut
         done: Future = Future()
         done.set_result(fn(args))
         return done
+
+    def result(fut: Future) -> dict:
+        """A fit's result, the replay of the values it ended at kept here for its judgement."""
+        res = fut.result()
+        on_pool.pop(fut, None)
+        remember(*res.pop("simulated"))
+        return res
 
     try:
         for rnd in range(1, MAX_EFFECTS + 1):
@@ -872,7 +895,7 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             k = 0
 
             def launch() -> None:
-                while todo and (pool is None or len(flying) < workers):
+                while todo and (not pools or len(flying) < workers):
                     kind, e, nfev, prep = todo.pop(0)
                     # an absorbed effect found idle before is screened from the model as it stands only
                     one = IDLE_ONE_BASE and kind == "screen" and e in last_fits and bool(CATALOGUE[e].absorbed_by)
@@ -896,7 +919,7 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             while todo or flying:
                 launch()
                 ended, _ = wait(list(flying), return_when=FIRST_COMPLETED)
-                came = [(flying.pop(f), f.result()) for f in sorted(ended, key=lambda f: order.index(flying[f][1]))]
+                came = [(flying.pop(f), result(f)) for f in sorted(ended, key=lambda f: order.index(flying[f][1]))]
                 launch()           # the workers go on while the screens that ended are judged here
                 for (kind, e), res in came:
                     if kind == "fit":
@@ -950,7 +973,7 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             while wave := [e for e in near if e not in refined and within_reach(results[e][0], best)]:
                 again = {run(_worker, (prob, current, e, FULL_NFEV, prepared[e], False, REFINE_TOL)): e for e in wave}
                 for fut in list(again):
-                    e, res = again[fut], fut.result()
+                    e, res = again[fut], result(fut)
                     res.pop("prepared")
                     entry, vals = judge(prob, hold_mask, hold_before, res, rnd, fit_before)
                     old = results[e][0]
@@ -1039,8 +1062,8 @@ def search(prob: Problem, current: dict[str, float], effects: Sequence[str], hol
             current = {**vals, **conv.values}
             say(f"round {rnd}: added {entry['effect']}")
     finally:
-        if pool:
-            pool.shutdown()
+        for p in pools:
+            p.shutdown()
     return Search(selected, current, candidates, rounds)
 
 
