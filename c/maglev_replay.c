@@ -462,14 +462,19 @@ int maglev_replay_closed_loop_injected(const double *params, const MaglevControl
             rc = -1;
             break;
         }
-        double yk;
-        sample(&m, k, y, x, v, i, &yk);
+        /* the reading and the current once a sample: the record's columns and the controller's inputs
+         * (a PID reads no current) */
+        double yk = maglev_get(&m, VR_y), ik = (i || c->kind != 0) ? maglev_get(&m, VR_i) : 0.0;
+        if (y) y[k] = yk;
+        if (x) x[k] = m.x;
+        if (v) v[k] = m.v;
+        if (i) i[k] = ik;
         if (dy || y_step > 0) {
             if (dy) yk += dy[k];
             if (y_step > 0) yk = y_step * round(yk / y_step);
             if (y) y[k] = yk;
         }
-        double uk = ctl_step(c, &cs, w[k], yk, maglev_get(&m, VR_i));
+        double uk = ctl_step(c, &cs, w[k], yk, ik);
         if (u_step > 0) uk = u_step * round(uk / u_step);
         if (u) u[k] = uk;
         /* the FMU's clock: the master adds ts to the previous communication point */

@@ -237,7 +237,8 @@ RESTART_MAXFEV = 40
 
 
 def minimize_restarted(cost, z0: np.ndarray, *, maxfev: int, restarts: int = NOISE_RESTARTS,
-                       xatol: float = 0.05, fatol: float = RESTART_GAIN, step: float | None = None):
+                       xatol: float = 0.05, fatol: float = RESTART_GAIN, step: float | None = None,
+                       bounds: tuple[np.ndarray, np.ndarray] | None = None):
     """scipy's Nelder-Mead from ``z0``, then again from its end (a fresh simplex: scipy's default,
     5 % of each coordinate) up to ``restarts`` times while that lowers the cost by more than
     ``fatol``. ``step``: the first simplex's edge along each coordinate (default: scipy's).
@@ -245,10 +246,11 @@ def minimize_restarted(cost, z0: np.ndarray, *, maxfev: int, restarts: int = NOI
     opts = {"xatol": xatol, "fatol": fatol}
     z0 = np.asarray(z0, dtype=float)
     first = {} if step is None else {"initial_simplex": np.vstack([z0, z0 + step * np.eye(len(z0))])}
-    res = minimize(cost, z0, method="Nelder-Mead", options={**opts, "maxfev": maxfev, **first})
+    box = None if bounds is None else list(zip(*bounds))
+    res = minimize(cost, z0, method="Nelder-Mead", bounds=box, options={**opts, "maxfev": maxfev, **first})
     nfev = res.nfev
     for _ in range(restarts):
-        again = minimize(cost, res.x, method="Nelder-Mead", options={**opts, "maxfev": RESTART_MAXFEV})
+        again = minimize(cost, res.x, method="Nelder-Mead", bounds=box, options={**opts, "maxfev": RESTART_MAXFEV})
         nfev += again.nfev
         gained = res.fun - again.fun if np.isfinite(again.fun) else 0.0    # inf - inf: no gain
         if again.fun < res.fun:
@@ -317,7 +319,8 @@ def _concentrated_search(rec: Record, params: Mapping[str, float], z0: np.ndarra
         points = [np.array([start[0] + np.log(k), np.log(f), *start[2:]])
                   for k in NOISE_GRID_RATIOS for f in NOISE_GRID_CORNERS_HZ]
         start = min(points, key=lambda zm: run(zm)[0])
-    res = minimize_restarted(lambda zm: run(zm)[0], start, maxfev=maxfev, step=NOISE_STEP)
+    res = minimize_restarted(lambda zm: run(zm)[0], start, maxfev=maxfev, step=NOISE_STEP,
+                             bounds=(lo_m[moved], hi_m[moved]))
     cost, c = run(res.x)
     z = levels(res.x)
     z[rms] += 0.5 * np.log(c)
